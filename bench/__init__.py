@@ -1,0 +1,1 @@
+"""The studies, dataset generation, scoring, comparisons and the ``whiskerbench`` command line."""
