@@ -25,8 +25,11 @@ OPTION_OF_FIELD = {
 }
 
 
-class UsageError(Exception):
-    """Bad command-line input: printed as one line, exit code 2."""
+class _Parser(argparse.ArgumentParser):
+    """argparse, but an error is one line (no usage block): option, problem, exit code 2."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {message} (see --help)\n")
 
 
 def _floats(option: str):
@@ -125,8 +128,8 @@ def _cmd_bench_detectability(args: argparse.Namespace) -> int:
 
 
 def _parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="whiskerbench", description=__doc__.splitlines()[0])
-    sub = parser.add_subparsers(dest="command", required=True)
+    parser = _Parser(prog="whiskerbench", description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
     study = sub.add_parser("detectability", help="rerun the marker-size detectability study")
     _add_study_options(study)
     study.add_argument("--out", help="run folder (default results/detectability/<name>)")
@@ -134,7 +137,7 @@ def _parser() -> argparse.ArgumentParser:
                        help="also write every 8-bit image detected on (PNG) for inspection")
     study.set_defaults(func=_cmd_detectability)
     bench = sub.add_parser("bench", help="speed benchmarks (print their figures)")
-    bench_sub = bench.add_subparsers(dest="benchmark", required=True)
+    bench_sub = bench.add_subparsers(dest="benchmark", required=True, parser_class=_Parser)
     bdet = bench_sub.add_parser("detectability", help="time the full default study, crops vs "
                                 "full frames")
     _add_study_options(bdet)

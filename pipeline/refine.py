@@ -9,29 +9,35 @@ where two straight edges meet, so it is found here from the edges instead:
    camera is aimed at the marker (:func:`pipeline.pose.virtual_view_rotation` of the sum of the
    rays). The marker's border edges, curved in the fisheye image, are exactly straight there.
    Its focal length is scaled so that the marker's perimeter is as long in virtual pixels as
-   in image pixels, so one virtual pixel is about one image pixel.
-2. **Edge points.** Along the middle 15%-85% of each of the 4 outer edges, intensity profiles
-   are taken along the edge normal, from 0.6 module inside (the black border is one module
-   wide; the code bits beyond it may be white) to 1 module outside (the white quiet zone).
-   Every profile sample is mapped virtual pixel -> ray -> fisheye pixel and read from the image
-   with one bilinear ``cv2.remap`` (the view is rectified only where it is sampled). The edge
-   lies where a profile crosses halfway between the edge's black level (median of the inner
-   samples) and white level (median of the outer samples), interpolated linearly between
-   samples: for any point-symmetric blur (the pixel's area, bilinear sampling, a lens) the
-   halfway crossing of a straight step edge is the edge itself.
-3. **Lines and corners.** A straight line is fitted to each edge's points (total least
-   squares, dropping outliers beyond 3 robust sigmas), adjacent lines are intersected, and the
-   4 corners are mapped back to fisheye pixels. Two passes: the second samples around the first
-   pass's corners.
+   in image pixels: one virtual pixel is about one image pixel.
+2. **Edge profiles.** Along the middle 15%-85% of each of the 4 outer edges, one intensity
+   profile per virtual pixel runs across the edge, from 0.6 module inside it (the black border
+   is one module wide; the code bits beyond it may be white) to 1 module outside it (the white
+   quiet zone). Profiles are laid out in marker modules through the homography of the current
+   corners, so the depths hold under perspective, and are sampled every half virtual pixel.
+   Only these samples are rectified: each is mapped virtual pixel -> ray -> fisheye pixel and
+   read with one bilinear ``cv2.remap`` of the (linearized) image.
+3. **Edge points.** Each profile is normalized between the edge's black level (a low
+   percentile of the inner samples, robust to the blur of neighbouring white code bits) and
+   its own white level (mean of its outer half, which follows shading). The halfway crossing
+   nearest the expected edge centres a window of +-2 px in which the edge position is the
+   window's outer end minus the area under the normalized profile. That area is preserved by
+   pixel-area sampling, bilinear reading and any point-symmetric blur, so the estimate is
+   unbiased whatever the edge's sub-pixel phase; the halfway crossing alone would be off by
+   up to 0.09 px.
+4. **Lines and corners.** A straight line is fitted to each edge's points (total least
+   squares; points beyond 3 robust sigmas of a first fit are dropped) and adjacent lines are
+   intersected. Steps 2-4 run twice, the second time around the first pass's corners; the
+   corners are then mapped back to fisheye pixels.
 
 Intensities are linearized first (``transfer="srgb"``, the camera response's default transfer
-curve): the halfway crossing is only unbiased in linear light; in sRGB codes it would sit about
-0.2 of the edge's blur width towards the black side.
+curve): areas and levels only add up in linear light; on sRGB codes the corners come out
+about 0.3 px inside.
 
-If refinement fails (too little contrast, an edge with too few consistent points, nearly
-parallel lines, a corner outside the image circle, or a corner moving more than
-``max_shift_px`` from where it started) the input corners are returned unchanged; it never
-raises for a bad image.
+If refinement fails (too little contrast across an edge, an edge with too few consistent
+points or too much scatter about its line, nearly parallel edges, samples outside the image
+or its circle, or a corner moving more than ``max_shift_px`` from where it started) the input
+corners are returned unchanged: a bad image never raises.
 """
 
 from __future__ import annotations
@@ -43,21 +49,29 @@ from pipeline.pose import virtual_view_rotation
 from scenes.camera import FisheyeCamera
 
 TRANSFERS = ("srgb", "linear")
-EDGE_SPAN = (0.15, 0.85)  # the part of each edge sampled, as fractions of its length
+EDGE_SPAN = (0.15, 0.85)  # the part of each edge that is sampled, as fractions of its length
 INNER_MODULES = 0.6  # profile depth inside the black border, in modules
 OUTER_MODULES = 1.0  # profile length into the white quiet zone, in modules
-STEP_PX = 0.25  # profile sample spacing (virtual pixels, about image pixels)
-ALONG_STEP_PX = 0.5  # spacing of the profiles along the edge
-MIN_PROFILES = 6
-MIN_INLIER_FRACTION = 0.6
+STEP_PX = 0.5  # largest sample spacing along a profile (virtual pixels, about image pixels)
+ALONG_STEP_PX = 1.0  # spacing of the profiles along an edge
+MIN_PROFILES, MAX_PROFILES = 6, 64  # per edge
+WINDOW_PX = 2.0  # half-width of the window in which an edge's position is measured
+BLACK_PERCENTILE = 15.0  # of the samples from 0.6 to 0.3 module inside an edge
 MIN_CONTRAST = 0.2  # (white - black) / white, in linear light
+MIN_INLIER_FRACTION = 0.6  # of an edge's profiles, to accept its line
 PASSES = 2
+
+_SQUARE = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])  # marker, in modules / M
+_ALONG = np.roll(_SQUARE, -1, axis=0) - _SQUARE  # edge k runs from corner k to corner k + 1
+_OUTWARD = np.array([[0.0, -1.0], [1.0, 0.0], [0.0, 1.0], [-1.0, 0.0]])
+_PREV = np.array([3, 0, 1, 2])
+_EDGES = np.arange(4)
+_DEPTH = np.array([-INNER_MODULES, 0.0, OUTER_MODULES])[:, None, None, None]
 
 
 def _srgb_to_linear_lut() -> np.ndarray:
     c = np.arange(256, dtype=np.float64) / 255.0
-    lin = np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
-    return lin.astype(np.float32)
+    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4).astype(np.float32)
 
 
 _LUTS = {"srgb": _srgb_to_linear_lut(), "linear": np.arange(256, dtype=np.float32) / 255.0}
@@ -67,164 +81,189 @@ class _RefineError(Exception):
     """Internal: refinement failed; the caller keeps the input corners."""
 
 
-def _to_virtual(
-    pixels: np.ndarray, camera: FisheyeCamera, R_virt_cam: np.ndarray, f_v: float
-) -> np.ndarray:
-    rays, valid = camera.unproject(pixels)
+def _to_fisheye(virt: np.ndarray, camera: FisheyeCamera, R_virt_cam: np.ndarray,
+                f_v: float) -> np.ndarray:
+    """Virtual pixels (..., 2) -> full-image fisheye pixels (..., 2); NaN outside the circle."""
+    rays = virt @ (R_virt_cam[:2] / f_v) + R_virt_cam[2]
+    return camera.project(rays)
+
+
+def _edge_lines(patch: np.ndarray, corners_v: np.ndarray, modules: int,
+                to_patch) -> tuple[np.ndarray, np.ndarray]:
+    """One sub-pixel line n . x = d per outer edge, in virtual pixels: normals (4, 2), d (4,).
+
+    ``patch`` is the linearized image; ``to_patch`` maps virtual pixels to its pixels.
+    """
+    length = np.linalg.norm(corners_v[_PREV] - corners_v, axis=1)
+    if length.min() < 3.0 * modules / 4:
+        raise _RefineError("marker too small")
+    H = cv2.getPerspectiveTransform((_SQUARE * modules).astype(np.float32),
+                                    corners_v.astype(np.float32))
+    n_along = min(max(round((EDGE_SPAN[1] - EDGE_SPAN[0]) * length.max() / ALONG_STEP_PX),
+                      MIN_PROFILES), MAX_PROFILES)
+    t = np.linspace(EDGE_SPAN[0], EDGE_SPAN[1], n_along)
+    # (3, 4 edges, n_along, 2): each profile's inner end, edge point and outer end, in modules
+    base = (_SQUARE[:, None, :] + t[:, None] * _ALONG[:, None, :]) * modules
+    h = (base + _DEPTH * _OUTWARD[:, None, :]) @ H[:, :2].T + H[:, 2]
+    ends = h[..., :2] / h[..., 2:]  # virtual pixels
+    p_in, p_edge, p_out = ends
+    delta = p_out - p_in
+    span = np.sqrt((delta * delta).sum(axis=-1))  # (4, n_along)
+    n_s = int(np.ceil(span.max() / STEP_PX)) + 1
+    ds = span / (n_s - 1)
+    frac = np.linspace(0.0, 1.0, n_s)
+    t_edge = ((p_edge - p_in) * delta).sum(axis=-1) / (span * span)  # where the edge should be
+    # A profile's image in the fisheye is a smooth curve: the quadratic through the images of
+    # its ends and edge point is exact to well under 0.001 px over its few pixels.
+    f_in, f_edge, f_out = to_patch(ends)
+    bend = (f_edge - f_in - t_edge[..., None] * (f_out - f_in)) / (t_edge * (t_edge - 1.0))[
+        ..., None
+    ]
+    a, b, c = f_in, f_out - f_in, bend  # maps = a + frac * b + frac (frac - 1) * c
+    curve = frac * (frac - 1.0)
+    mx = a[..., 0, None] + frac * b[..., 0, None] + curve * c[..., 0, None]
+    my = a[..., 1, None] + frac * b[..., 1, None] + curve * c[..., 1, None]
+    values = cv2.remap(patch, mx.astype(np.float32).reshape(-1, n_s),
+                       my.astype(np.float32).reshape(-1, n_s), cv2.INTER_LINEAR,
+                       borderMode=cv2.BORDER_REPLICATE).reshape(4, n_along, n_s)
+
+    # Levels: black per edge from the inner half of the profiles' black part; white per
+    # profile from its outer half (it follows shading).
+    j_edge = t_edge * (n_s - 1)  # sample index of the edge
+    c_in = int(0.5 * j_edge.min()) + 1
+    c_out = min(int(np.ceil((0.5 * (j_edge + n_s - 1)).max())), n_s - 1)
+    inner = values[:, :, :c_in].reshape(4, -1)
+    k = int(BLACK_PERCENTILE / 100.0 * (inner.shape[1] - 1))
+    black = np.partition(inner, k, axis=1)[:, k]
+    white = values[:, :, c_out:].mean(axis=2)
+    contrast = white - black[:, None]
+    ok = contrast >= MIN_CONTRAST * white
+    if np.any(ok.sum(axis=1) < MIN_INLIER_FRACTION * n_along):
+        raise _RefineError("too little contrast across an edge")
+    v = (values - black[:, None, None]) / np.where(ok, contrast, 1.0)[..., None]
+    # The halfway crossing (rising, inside -> outside) nearest the expected edge ...
+    rising = (v[..., :-1] < 0.5) & (v[..., 1:] >= 0.5)
+    dist = np.where(rising, np.abs(np.arange(n_s - 1) + 0.5 - j_edge[..., None]), np.inf)
+    j = np.argmin(dist, axis=2)
+    found = ok & (dist.min(axis=2) < np.inf)
+    # ... centres the window where the edge is its outer end minus the area under the profile.
+    half = min(int(np.ceil(WINDOW_PX / ds.min())), (n_s - 1) // 2)
+    j_lo = np.minimum(np.maximum(j - half, 0), n_s - 1 - 2 * half)
+    flat_lo = (np.arange(4 * n_along) * n_s).reshape(4, n_along) + j_lo
+    flat_hi = flat_lo + 2 * half
+    v_flat, total = v.ravel(), np.cumsum(v, axis=2).ravel()
+    # trapezoid area from sample j_lo to j_hi, in samples
+    area = total[flat_hi] - total[flat_lo] - 0.5 * (v_flat[flat_hi] - v_flat[flat_lo])
+    edge_frac = (j_lo + 2 * half - area) / (n_s - 1)
+    points = p_in + edge_frac[..., None] * delta
+    return _fit_lines(points, found, max(0.1 * length.min() / modules, 0.15))
+
+
+def _fit_lines(points: np.ndarray, found: np.ndarray,
+               max_rms: float) -> tuple[np.ndarray, np.ndarray]:
+    """Robust total-least-squares lines through (4, m, 2) points: normals (4, 2), offsets (4,).
+
+    Points beyond 3 robust sigmas (at least 0.05 px) of a first fit are dropped.
+    """
+    need = max(MIN_PROFILES, MIN_INLIER_FRACTION * points.shape[1])
+    x, y = points[..., 0], points[..., 1]
+    keep = found
+    for step in range(2):
+        count = keep.sum(axis=1)
+        if count.min() < need:
+            raise _RefineError("an edge has too few consistent points")
+        w = keep / count[:, None]
+        cx, cy = (w * x).sum(axis=1), (w * y).sum(axis=1)
+        dx, dy = x - cx[:, None], y - cy[:, None]
+        wdx, wdy = w * dx, w * dy
+        sxx, syy, sxy = (wdx * dx).sum(axis=1), (wdy * dy).sum(axis=1), (wdx * dy).sum(axis=1)
+        angle = 0.5 * np.arctan2(2.0 * sxy, sxx - syy)  # direction of the line (major axis)
+        nx, ny = -np.sin(angle), np.cos(angle)
+        r = np.abs(nx[:, None] * dx + ny[:, None] * dy)
+        if step == 1:
+            break
+        r_sorted = np.sort(np.where(keep, r, np.inf), axis=1)
+        sigma = 1.4826 * r_sorted[_EDGES, (count - 1) // 2]
+        keep = found & (r <= np.maximum(3.0 * sigma, 0.05)[:, None])
+    if ((keep * r * r).sum(axis=1) / count).max() > max_rms**2:
+        raise _RefineError("edge points scatter too much")
+    return np.stack([nx, ny], axis=1), nx * cx + ny * cy
+
+
+def _intersect(normal: np.ndarray, offset: np.ndarray) -> np.ndarray:
+    """Corner k where edge k - 1 meets edge k."""
+    n1, n2, d1, d2 = normal[_PREV], normal, offset[_PREV], offset
+    det = n1[:, 0] * n2[:, 1] - n1[:, 1] * n2[:, 0]
+    if np.any(np.abs(det) < 0.1):  # sine of the angle between adjacent edges
+        raise _RefineError("nearly parallel edges")
+    return np.stack([d1 * n2[:, 1] - d2 * n1[:, 1], n1[:, 0] * d2 - n2[:, 0] * d1], axis=1) / det[
+        :, None
+    ]
+
+
+def _refine(image: np.ndarray, start: np.ndarray, camera: FisheyeCamera, modules: int,
+            offset: np.ndarray, lut: np.ndarray) -> np.ndarray:
+    rays, valid = camera.unproject(start)
     if not valid.all():
         raise _RefineError("a corner lies outside the image circle")
+    R_virt_cam = virtual_view_rotation(rays.sum(axis=0))
     q = rays @ R_virt_cam.T
-    if np.any(q[..., 2] <= 1e-6):
-        raise _RefineError("a corner lies behind the virtual view")
-    return f_v * q[..., :2] / q[..., 2:]
-
-
-def _to_fisheye(
-    virt: np.ndarray, camera: FisheyeCamera, R_virt_cam: np.ndarray, f_v: float
-) -> np.ndarray:
-    """Virtual pixels (..., 2) -> full-image fisheye pixels (..., 2); NaN outside the circle."""
-    rays_virt = np.concatenate([virt / f_v, np.ones(virt.shape[:-1] + (1,))], axis=-1)
-    return camera.project(rays_virt @ R_virt_cam)
-
-
-def _fit_line(points: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
-    """Total-least-squares line n . x = d through (m, 2) points; also the residuals."""
-    centre = points.mean(axis=0)
-    centred = points - centre
-    _, vecs = np.linalg.eigh(centred.T @ centred)
-    normal = vecs[:, 0]
-    return normal, float(normal @ centre), centred @ normal
-
-
-def _edge_lines(
-    image: np.ndarray, x0: int, y0: int, corners_v: np.ndarray, modules: int,
-    camera: FisheyeCamera, R_virt_cam: np.ndarray, f_v: float, lut: np.ndarray,
-) -> list[tuple[np.ndarray, float]]:
-    """One sub-pixel line (normal, d) per outer edge, in virtual pixels."""
-    starts, ends = corners_v, np.roll(corners_v, -1, axis=0)
-    vec = ends - starts
-    length = np.linalg.norm(vec, axis=1)
-    if np.any(length < 3.0):
-        raise _RefineError("marker too small")
-    module = length.mean() / modules
-    along = vec / length[:, None]
-    normal = np.stack([along[:, 1], -along[:, 0]], axis=1)
-    centre = corners_v.mean(axis=0)
-    outward = np.sign(np.einsum("ij,ij->i", normal, 0.5 * (starts + ends) - centre))
-    normal *= outward[:, None]
-
-    n_along = int(np.clip(np.round((EDGE_SPAN[1] - EDGE_SPAN[0]) * length.max() / ALONG_STEP_PX),
-                          MIN_PROFILES, 64))
-    t = np.linspace(EDGE_SPAN[0], EDGE_SPAN[1], n_along)
-    inner, outer = INNER_MODULES * module, OUTER_MODULES * module
-    s = np.arange(-np.ceil(inner / STEP_PX), np.ceil(outer / STEP_PX) + 1) * STEP_PX
-    s = s[(s >= -inner - 1e-9)]
-    # (4 edges, n_along, n_s, 2) sample positions in the virtual view, then in the fisheye
-    base = starts[:, None, :] + t[None, :, None] * vec[:, None, :]
-    virt = base[:, :, None, :] + s[None, None, :, None] * normal[:, None, None, :]
-    fish = _to_fisheye(virt, camera, R_virt_cam, f_v)
-    if np.isnan(fish).any():
-        raise _RefineError("edge samples outside the image circle")
-    fish -= (x0, y0)
-    lo = np.floor(fish.reshape(-1, 2).min(axis=0)).astype(int) - 1
-    hi = np.ceil(fish.reshape(-1, 2).max(axis=0)).astype(int) + 2
-    if np.any(lo < 0) or hi[0] > image.shape[1] or hi[1] > image.shape[0]:
-        raise _RefineError("edge samples leave the image")
+    if np.any(q[:, 2] <= 1e-6):
+        raise _RefineError("the marker spans too wide an angle")
+    corners_v = q[:, :2] / q[:, 2:]
+    f_v = (np.linalg.norm(start[_PREV] - start, axis=1).sum()
+           / np.linalg.norm(corners_v[_PREV] - corners_v, axis=1).sum())
+    corners_v *= f_v
+    # The image region the passes may sample: the corners' box plus 2 modules and 3 px.
+    margin = 2.0 * np.linalg.norm(start[_PREV] - start, axis=1).max() / modules + 3.0
+    lo = np.maximum(np.floor(start.min(axis=0) - offset - margin), 0).astype(int)
+    hi = np.minimum(np.ceil(start.max(axis=0) - offset + margin) + 1,
+                    [image.shape[1], image.shape[0]]).astype(int)
     patch = lut[image[lo[1]:hi[1], lo[0]:hi[0]]]
-    maps = (fish - lo).astype(np.float32)
-    flat = maps.reshape(-1, maps.shape[2], 2)
-    values = cv2.remap(patch, flat[..., 0], flat[..., 1], cv2.INTER_LINEAR,
-                       borderMode=cv2.BORDER_REPLICATE).reshape(4, n_along, len(s))
+    shift = offset + lo
 
-    inner_cols = s <= -0.5 * inner
-    outer_cols = s >= 0.5 * outer
-    black = np.median(values[:, :, inner_cols].reshape(4, -1), axis=1)
-    white = np.median(values[:, :, outer_cols].reshape(4, -1), axis=1)
-    if np.any(white - black < MIN_CONTRAST * np.maximum(white, 1e-6)):
-        raise _RefineError("too little contrast across an edge")
-    v = (values - black[:, None, None]) / (white - black)[:, None, None]
-    # the halfway crossing (rising, inside -> outside) nearest the current edge estimate
-    rising = (v[..., :-1] < 0.5) & (v[..., 1:] >= 0.5)
-    dist = np.where(rising, np.abs(s[:-1] + 0.5 * STEP_PX), np.inf)
-    j = np.argmin(dist, axis=2)
-    found = np.isfinite(np.take_along_axis(dist, j[..., None], axis=2)[..., 0])
-    v0 = np.take_along_axis(v, j[..., None], axis=2)[..., 0]
-    v1 = np.take_along_axis(v, j[..., None] + 1, axis=2)[..., 0]
-    offset = s[j] + STEP_PX * (0.5 - v0) / np.where(v1 > v0, v1 - v0, 1.0)
-    points = base + offset[..., None] * normal[:, None, :]
+    def to_patch(virt: np.ndarray) -> np.ndarray:
+        px = _to_fisheye(virt, camera, R_virt_cam, f_v) - shift
+        if not np.isfinite(px).all():
+            raise _RefineError("edge samples outside the image circle")
+        if (px.min() < 0 or px[..., 0].max() > patch.shape[1] - 1
+                or px[..., 1].max() > patch.shape[0] - 1):
+            raise _RefineError("edge samples leave the image")
+        return px
 
-    lines = []
-    for k in range(4):
-        pts = points[k][found[k]]
-        if len(pts) < max(MIN_PROFILES, MIN_INLIER_FRACTION * n_along):
-            raise _RefineError("edge not found")
-        keep = np.ones(len(pts), dtype=bool)
-        for _ in range(2):
-            n, d, r = _fit_line(pts[keep])
-            r_all = pts @ n - d
-            sigma = 1.4826 * np.median(np.abs(r_all[keep]))
-            keep = np.abs(r_all) <= max(3.0 * sigma, 0.05)
-            if keep.sum() < max(MIN_PROFILES, MIN_INLIER_FRACTION * n_along):
-                raise _RefineError("edge points do not lie on a line")
-        n, d, r = _fit_line(pts[keep])
-        if np.sqrt(np.mean(r * r)) > max(0.1 * module, 0.15):
-            raise _RefineError("edge points scatter too much")
-        lines.append((n, d))
-    return lines
-
-
-def _intersect(lines: list[tuple[np.ndarray, float]]) -> np.ndarray:
-    """Corner k where edge k - 1 meets edge k (edge k runs from corner k to corner k + 1)."""
-    corners = np.empty((4, 2))
-    for k in range(4):
-        (n1, d1), (n2, d2) = lines[k - 1], lines[k]
-        A = np.stack([n1, n2])
-        det = np.linalg.det(A)
-        if abs(det) < 0.1:  # sine of the angle between the edges
-            raise _RefineError("nearly parallel edges")
-        corners[k] = np.linalg.solve(A, [d1, d2])
+    for _ in range(PASSES):
+        corners_v = _intersect(*_edge_lines(patch, corners_v, modules, to_patch))
+    corners = _to_fisheye(corners_v, camera, R_virt_cam, f_v)
+    if not np.isfinite(corners).all():
+        raise _RefineError("a refined corner lies outside the image circle")
     return corners
 
 
 def refine_corners_by_edges(
     image: np.ndarray, corners_px: np.ndarray, camera: FisheyeCamera, modules: int,
-    offset_px: tuple[int, int] = (0, 0), *, transfer: str = "srgb", max_shift_px: float = 2.0,
+    offset_px: tuple[int, int] = (0, 0), *, transfer: str = "srgb", max_shift_px: float = 2.5,
 ) -> np.ndarray:
     """Refine a marker's 4 corners from its straight border edges (see the module docstring).
 
     ``image``: (H, W) uint8 grey, the full frame or a crop whose top-left pixel is ``offset_px``
     in full-image pixels. ``corners_px``: (4, 2) approximate corners in full-image pixels, ArUco
-    order (TL, TR, BR, BL). ``modules``: modules across the black square (markerSize + 2, 6 for
-    a 4x4 dictionary). ``transfer``: the curve that encoded the image ("srgb" or "linear").
+    order (TL, TR, BR, BL), e.g. OpenCV's with ``CORNER_REFINE_NONE``. ``modules``: modules
+    across the black square, markerSize + 2 (6 for a 4x4 dictionary). ``transfer``: the curve
+    that encoded the image, "srgb" or "linear".
 
-    Returns (4, 2) float64 corners in full-image pixels, ArUco order. If refinement fails or a
-    corner would move more than ``max_shift_px``, returns the input corners unchanged.
+    Returns (4, 2) float64 corners in full-image pixels, ArUco order. If refinement fails, or a
+    corner would move more than ``max_shift_px``, returns (a copy of) the input corners.
     """
     if transfer not in TRANSFERS:
         raise ValueError(f"transfer={transfer!r}: choose from {', '.join(TRANSFERS)}")
     if image.ndim != 2 or image.dtype != np.uint8:
         raise ValueError(f"need an 8-bit grey image, got {image.dtype} of shape {image.shape}")
     start = np.asarray(corners_px, dtype=float).reshape(4, 2)
-    if not np.isfinite(start).all() or modules < 3:
+    if not np.isfinite(start).all() or int(modules) < 3:
         return start.copy()
-    x0, y0 = int(offset_px[0]), int(offset_px[1])
-    corners = start
+    offset = np.asarray(offset_px, dtype=float).reshape(2)
     try:
-        for _ in range(PASSES):
-            rays, valid = camera.unproject(corners)
-            if not valid.all():
-                raise _RefineError("a corner lies outside the image circle")
-            R_virt_cam = virtual_view_rotation(rays.sum(axis=0))
-            corners_v = _to_virtual(corners, camera, R_virt_cam, 1.0)
-            perimeter_v = np.linalg.norm(corners_v - np.roll(corners_v, 1, axis=0), axis=1).sum()
-            perimeter = np.linalg.norm(corners - np.roll(corners, 1, axis=0), axis=1).sum()
-            f_v = perimeter / perimeter_v
-            corners_v *= f_v
-            lines = _edge_lines(image, x0, y0, corners_v, int(modules), camera, R_virt_cam, f_v,
-                                _LUTS[transfer])
-            corners = _to_fisheye(_intersect(lines), camera, R_virt_cam, f_v)
-            if not np.isfinite(corners).all():
-                raise _RefineError("a refined corner lies outside the image circle")
+        corners = _refine(image, start, camera, int(modules), offset, _LUTS[transfer])
     except (_RefineError, np.linalg.LinAlgError):
         return start.copy()
     if np.any(np.linalg.norm(corners - start, axis=1) > max_shift_px):

@@ -4,7 +4,10 @@ Mitsuba has no fisheye sensor, so the rays come from :meth:`FisheyeCamera.unproj
 code the labels and the pipeline use), jittered within each pixel, and are evaluated with
 ``integrator.sample``. Light is split in two parts that are rendered differently:
 
-* the sky (an environment map): Mitsuba's ``direct`` integrator with BSDF sampling, Monte Carlo;
+* the sky: by default exactly, as albedo x sky irradiance E(n) / pi from the traced hit's
+  normal and albedo (:mod:`renderers.sky_irradiance`; valid where nothing occludes the sky,
+  as for the study's lone marker), or with Mitsuba's ``direct`` integrator (Monte Carlo, correct
+  with occluders) over the same sky as an environment map;
 * the sun, a delta light: evaluated exactly per sample as BSDF x irradiance x visibility, so it
   carries no Monte Carlo noise. Keeping it per sample lets a leaf canopy's moving shadow be
   applied afterwards with one shadow ray per sample (:func:`canopy_visibility`) instead of a
@@ -22,6 +25,7 @@ import mitsuba as mi
 import numpy as np
 
 from renderers.mitsuba_scene import CanopyScene, MarkerScene
+from renderers.sky_irradiance import irradiance
 from renderers.window import Window
 from scenes.camera import FisheyeCamera
 from scenes.lighting import Lighting, canopy_frame
@@ -52,65 +56,88 @@ def _is_jit() -> bool:
     return mi.variant() is not None and not mi.variant().startswith("scalar")
 
 
-def _trace_jit(scene: mi.Scene, integrator: mi.Integrator, lighting: Lighting, dirs: np.ndarray,
-               seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+#: Per-sample quantities traced by Mitsuba, each (n, 3) float32 (NaN position where no hit).
+TRACED = ("sky", "sun", "position", "normal", "albedo")
+
+
+def _trace_jit(scene: mi.Scene, integrator: mi.Integrator | None, lighting: Lighting,
+               dirs: np.ndarray, seed: int) -> dict[str, np.ndarray]:
     n = len(dirs)
     ray = mi.RayDifferential3f(mi.Ray3f(mi.Point3f(0.0, 0.0, 0.0), mi.Vector3f(dirs.T.astype(np.float32))))
-    sampler = mi.load_dict({"type": "independent"})
-    sampler.seed(seed, n)
-    sky, _, _ = integrator.sample(scene, sampler, ray)
     si = scene.ray_intersect(ray)
-    sun = mi.Color3f(0.0)
+    # Lambertian surfaces are one-sided in Mitsuba: seen from behind they are black.
+    front = si.is_valid() & (dr.dot(si.sh_frame.n, -ray.d) > 0)
+    bsdf = si.bsdf(ray)
+    out = {
+        "position": dr.select(si.is_valid(), si.p, mi.Point3f(dr.nan)),
+        "normal": dr.select(front, si.sh_frame.n, 0.0),
+        "albedo": dr.select(front, bsdf.eval_diffuse_reflectance(si, front), 0.0),
+        "sun": mi.Color3f(0.0),
+        "sky": mi.Color3f(0.0),
+    }
     if lighting.sun is not None:
         to_sun = mi.Vector3f(lighting.sun.to_sun_cam)
-        bsdf = si.bsdf(ray)
-        f = bsdf.eval(mi.BSDFContext(), si, si.to_local(to_sun), si.is_valid())
-        lit = si.is_valid() & ~scene.ray_test(si.spawn_ray(to_sun), si.is_valid())
-        sun = dr.select(lit, f * lighting.sun.irradiance * mi.Color3f(lighting.sun.color), 0.0)
-    p = dr.select(si.is_valid(), si.p, mi.Point3f(dr.nan))
-    dr.eval(sky, sun, p)
-    return sky.numpy().T, sun.numpy().T, p.numpy().T
+        f = bsdf.eval(mi.BSDFContext(), si, si.to_local(to_sun), front)
+        lit = front & ~scene.ray_test(si.spawn_ray(to_sun), front)
+        out["sun"] = dr.select(lit, f * lighting.sun.irradiance * mi.Color3f(lighting.sun.color), 0.0)
+    if integrator is not None:
+        sampler = mi.load_dict({"type": "independent"})
+        sampler.seed(seed, n)
+        out["sky"] = integrator.sample(scene, sampler, ray)[0]
+    dr.eval(*out.values())
+    return {k: v.numpy().T for k, v in out.items()}
 
 
-def _trace_scalar(scene: mi.Scene, integrator: mi.Integrator, lighting: Lighting, dirs: np.ndarray,
-                  seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _trace_scalar(scene: mi.Scene, integrator: mi.Integrator | None, lighting: Lighting,
+                  dirs: np.ndarray, seed: int) -> dict[str, np.ndarray]:
     """The same computation one ray at a time, for the scalar_rgb fallback (slow)."""
+    out = {k: np.zeros((len(dirs), 3), np.float32) for k in TRACED}
+    out["position"][:] = np.nan
     sampler = mi.load_dict({"type": "independent"})
     sampler.seed(seed)
-    out = np.zeros((3, len(dirs), 3), dtype=np.float32)
-    out[2] = np.nan
     for i, d in enumerate(dirs):
         ray = mi.RayDifferential3f(mi.Ray3f(mi.Point3f(0.0), mi.Vector3f(*map(float, d))))
-        sky, _, _ = integrator.sample(scene, sampler, ray)
-        sampler.advance()
-        out[0, i] = np.array(sky)
+        if integrator is not None:
+            out["sky"][i] = np.array(integrator.sample(scene, sampler, ray)[0])
+            sampler.advance()
         si = scene.ray_intersect(ray)
         if not si.is_valid():
             continue
-        out[2, i] = np.array(si.p)
+        out["position"][i] = np.array(si.p)
+        if dr.dot(si.sh_frame.n, -ray.d) <= 0:
+            continue
+        bsdf = si.bsdf(ray)
+        out["normal"][i] = np.array(si.sh_frame.n)
+        out["albedo"][i] = np.array(bsdf.eval_diffuse_reflectance(si))
         if lighting.sun is not None:
             to_sun = mi.Vector3f(lighting.sun.to_sun_cam)
             if not scene.ray_test(si.spawn_ray(to_sun)):
-                f = si.bsdf(ray).eval(mi.BSDFContext(), si, si.to_local(to_sun))
-                out[1, i] = np.array(f) * lighting.sun.irradiance * np.asarray(lighting.sun.color)
-    return out[0], out[1], out[2]
+                f = bsdf.eval(mi.BSDFContext(), si, si.to_local(to_sun))
+                out["sun"][i] = np.array(f) * lighting.sun.irradiance * np.asarray(lighting.sun.color)
+    return out
+
+
+SKY_METHODS = ("irradiance", "integrator")
 
 
 class FisheyeRenderer:
     """Renders windows of one marker scene through a fisheye camera model."""
 
-    def __init__(
-        self, camera: FisheyeCamera, scene: MarkerScene, spp: int = 16, shadow_spp: int = 4
-    ) -> None:
+    def __init__(self, camera: FisheyeCamera, scene: MarkerScene, spp: int = 16,
+                 shadow_spp: int = 4, sky: str = "irradiance") -> None:
+        """``sky``: ``"irradiance"`` (exact and noise-free where nothing occludes the sky, as for
+        the study's lone marker; :mod:`renderers.sky_irradiance`) or ``"integrator"`` (Mitsuba's
+        ``direct`` integrator, Monte Carlo, correct with occluders)."""
         if spp < 1 or shadow_spp < 1:
             raise ValueError(f"spp={spp}, shadow_spp={shadow_spp}: both must be >= 1")
+        if sky not in SKY_METHODS:
+            raise ValueError(f"sky={sky!r}: choose from {', '.join(SKY_METHODS)}")
         self.camera = camera
         self.scene = scene
         self.spp = spp
         self.shadow_spp = shadow_spp
-        # BSDF sampling only: the sky is smooth, so cosine-weighted sampling is near zero-variance
-        # (exactly zero for a uniform sky); the sun, the one sharp light, is evaluated exactly.
-        self.integrator = mi.load_dict({"type": "direct", "emitter_samples": 0, "bsdf_samples": 1})
+        self.sky = sky
+        self.integrator = mi.load_dict({"type": "direct"}) if sky == "integrator" else None
         self._trace = _trace_jit if _is_jit() else _trace_scalar
 
     def render(self, window: Window, seed: int) -> RenderedWindow:
@@ -123,25 +150,50 @@ class FisheyeRenderer:
         lighting = self.scene.lighting
         rng = np.random.default_rng(seed)
         h, w, s = window.height, window.width, self.spp
-        dirs, valid = self.camera.unproject(window.sample_positions(s, rng).reshape(-1, 2))
-        sky = np.zeros((h * w * s, 3), np.float32)
+        keep = np.linspace(0, s - 1, min(self.shadow_spp, s)).round().astype(int)
+        sky = np.zeros((h, w, 3), np.float32)
         sun = np.zeros_like(sky)
-        pos = np.full_like(sky, np.nan)
-        idx = np.flatnonzero(valid)
-        for k, start in enumerate(range(0, len(idx), CHUNK_RAYS)):
-            part = idx[start:start + CHUNK_RAYS]
-            traced = self._trace(
-                self.scene.scene, self.integrator, lighting, _pad(dirs[part]), (seed * 7919 + k) & 0xFFFFFFFF
-            )
-            sky[part], sun[part], pos[part] = (a[: len(part)] for a in traced)
-        sky = sky.reshape(h, w, s, 3).mean(axis=2)
-        sun = sun.reshape(h, w, s, 3).mean(axis=2)
+        shadow = np.full((h, w, len(keep), 3), np.nan, np.float32) if lighting.canopy else None
+        rows = max(1, CHUNK_RAYS // (w * s))  # row bands bound memory on full frames
+        chunk = 0
+        for r0 in range(0, h, rows):
+            band = Window(window.x0, window.y0 + r0, w, min(rows, h - r0))
+            dirs, valid = self.camera.unproject(band.sample_positions(s, rng).reshape(-1, 2))
+            traced = {k: np.zeros((len(dirs), 3), np.float32) for k in TRACED}
+            traced["position"][:] = np.nan
+            idx = np.flatnonzero(valid)
+            for start in range(0, len(idx), CHUNK_RAYS):
+                part = idx[start:start + CHUNK_RAYS]
+                out = self._trace(self.scene.scene, self.integrator, lighting, _pad(dirs[part]),
+                                  (seed * 7919 + chunk) & 0xFFFFFFFF)
+                chunk += 1
+                for k in TRACED:
+                    traced[k][part] = out[k][: len(part)]
+            if self.sky == "irradiance":
+                traced["sky"] = self._sky_radiance(dirs, valid, traced)
+            rows_here = slice(r0, r0 + band.height)
+            shape = (band.height, w, s, 3)
+            sky[rows_here] = traced["sky"].reshape(shape).mean(axis=2)
+            sun[rows_here] = traced["sun"].reshape(shape).mean(axis=2)
+            if shadow is not None:
+                shadow[rows_here] = traced["position"].reshape(shape)[:, :, keep]
         inside = self.camera.unproject(window.pixel_centres())[1]
-        shadow_points = None
-        if lighting.canopy is not None:
-            keep = np.linspace(0, s - 1, min(self.shadow_spp, s)).round().astype(int)
-            shadow_points = pos.reshape(h, w, s, 3)[:, :, keep]
-        return RenderedWindow(window, sky, sun, shadow_points, inside)
+        return RenderedWindow(window, sky, sun, shadow, inside)
+
+
+    def _sky_radiance(self, dirs: np.ndarray, valid: np.ndarray,
+                      traced: dict[str, np.ndarray]) -> np.ndarray:
+        """Exact sky term: albedo E(n) / pi on surfaces, the sky itself where rays escape."""
+        sky = self.scene.lighting.sky
+        color = np.asarray(sky.color, dtype=np.float32)
+        hit = ~np.isnan(traced["position"][:, 0])
+        lum = np.zeros(len(dirs), np.float32)
+        lit = hit & traced["albedo"].any(axis=1)
+        lum[lit] = irradiance(sky, traced["normal"][lit]) / np.pi
+        escaped = valid & ~hit
+        lum[escaped] = sky.radiance(dirs[escaped])
+        albedo = np.where(hit[:, None], traced["albedo"], 1.0)
+        return albedo * lum[:, None] * color
 
 
 def _pad(rays: np.ndarray) -> np.ndarray:

@@ -53,10 +53,12 @@ def mesh_to_mitsuba(name: str, mesh: trimesh.Trimesh, bsdf: dict) -> mi.Mesh:
         props=mi.Properties(),
     )
     params = mi.traverse(out)
-    params["vertex_positions"] = mi.Float(np.asarray(mesh.vertices, dtype=np.float32).ravel())
-    params["faces"] = mi.UInt32(np.asarray(mesh.faces, dtype=np.uint32).ravel())
+    # The buffers' own types: dynamic arrays in every variant, scalar_rgb included.
+    floats, ints = type(params["vertex_positions"]), type(params["faces"])
+    params["vertex_positions"] = floats(np.asarray(mesh.vertices, dtype=np.float32).ravel())
+    params["faces"] = ints(np.asarray(mesh.faces, dtype=np.uint32).ravel())
     if uv is not None:
-        params["vertex_texcoords"] = mi.Float(np.asarray(uv, dtype=np.float32).ravel())
+        params["vertex_texcoords"] = floats(np.asarray(uv, dtype=np.float32).ravel())
     params.update()
     out.set_bsdf(mi.load_dict(bsdf))
     return out
@@ -105,7 +107,8 @@ class MarkerScene:
         for key, mesh in (("print", self._print), ("carrier", self._carrier)):
             local = np.asarray(mesh.vertices) * [scale, scale, 1.0]
             posed = transform_points(T_cam_marker, local).astype(np.float32)
-            self._params[f"{key}.vertex_positions"] = mi.Float(posed.ravel())
+            key = f"{key}.vertex_positions"
+            self._params[key] = type(self._params[key])(posed.ravel())
         self._params.update()
 
 

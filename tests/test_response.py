@@ -4,7 +4,6 @@ vignetting, lens blur, JPEG and parameter validation."""
 from __future__ import annotations
 
 import math
-import time
 
 import cv2
 import numpy as np
@@ -320,16 +319,3 @@ def test_bad_field_raises_naming_field_and_value(field, value):
     with pytest.raises(ValueError, match=field) as info:
         CameraResponse(**{field: value})
     assert repr(value) in str(info.value)
-
-
-def test_sixty_small_images_are_fast():
-    theta, valid = fisheye_maps(128)
-    radiance = stripes(128)
-    response = CameraResponse(exposure="auto", vignetting=0.3)
-    rng = np.random.default_rng(0)
-    timings = []
-    for _ in range(5):
-        start = time.perf_counter()
-        apply_response(radiance, response, rng, 60, theta, THETA_MAX, valid)
-        timings.append(time.perf_counter() - start)
-    assert min(timings) < 0.05

@@ -1,0 +1,41 @@
+# Set-up lives here: `make study` and `make test` do everything on a fresh Debian machine.
+VENV ?= .venv
+PYTHON ?= python3
+BIN := $(VENV)/bin
+
+.PHONY: setup llvm study quick test bench lint
+
+setup: $(VENV)/.installed llvm
+
+$(VENV)/.installed: pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/pip install --quiet --upgrade pip
+	$(BIN)/pip install --quiet -e '.[dev]'
+	touch $@
+
+# Dr.Jit's fast CPU backend needs libLLVM >= 17 (15/16 abort drjit 1.5): install Debian's 19.
+llvm: $(VENV)/.installed
+	@if $(BIN)/python -m renderers.variant --has-llvm; then \
+	  echo "libLLVM >= 17 found: the fast llvm_ad_rgb variant is available"; \
+	elif [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
+	  echo "installing libllvm19 (Dr.Jit's LLVM backend needs libLLVM >= 17)"; \
+	  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libllvm19 >/dev/null; \
+	else \
+	  echo "NOTE: no libLLVM >= 17 found; rendering falls back to the ~8x slower scalar_rgb."; \
+	  echo "      Fast path: sudo apt-get install libllvm19  (or set DRJIT_LIBLLVM_PATH)"; \
+	fi
+
+study: setup
+	$(BIN)/whiskerbench detectability --out results/detectability/default
+
+quick: setup
+	$(BIN)/whiskerbench detectability --quick
+
+test: setup
+	$(BIN)/pytest -q
+
+bench: setup
+	$(BIN)/whiskerbench bench detectability
+
+lint: setup
+	$(BIN)/ruff check .
