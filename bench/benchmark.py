@@ -38,27 +38,41 @@ def _full_frame_cell(config: StudyConfig, cell, n_images: int) -> dict:
     t0 = time.perf_counter()
     rendered = renderer.render(Window.full(config.camera), seed=1)
     t1 = time.perf_counter()
-    response = dataclasses.replace(config.response,
-                                   exposure=config.response.exposure * lighting.exposure)
+    response = dataclasses.replace(
+        config.response, exposure=config.response.exposure * lighting.exposure
+    )
     radiance = (rendered.radiance() @ LUMINANCE_RGB).astype(np.float32)
-    images = apply_response(radiance, response, np.random.default_rng(0), n_images=n_images,
-                            valid=rendered.inside)
+    images = apply_response(
+        radiance, response, np.random.default_rng(0), n_images=n_images, valid=rendered.inside
+    )
     t2 = time.perf_counter()
-    found = [any(d.marker_id == config.marker_id for d in detect_markers(im, config.detector))
-             for im in images]
+    found = [
+        any(
+            d.marker_id == config.marker_id
+            for d in detect_markers(im, config.detector, camera=config.camera)
+        )
+        for im in images
+    ]
     t3 = time.perf_counter()
-    return {"render_s": t1 - t0, "response_s_per_image": (t2 - t1) / n_images,
-            "detect_s_per_image": (t3 - t2) / n_images, "rate": float(np.mean(found))}
+    return {
+        "render_s": t1 - t0,
+        "response_s_per_image": (t2 - t1) / n_images,
+        "detect_s_per_image": (t3 - t2) / n_images,
+        "rate": float(np.mean(found)),
+    }
 
 
-def bench_detectability(config: StudyConfig, variant: str | None = None, full_frame_cells: int = 2,
-                        workers: int = 1) -> dict:
+def bench_detectability(
+    config: StudyConfig, variant: str | None = None, full_frame_cells: int = 2, workers: int = 1
+) -> dict:
     """Time the study (crops) and full frames in one run; print figures and the ratio."""
     init_worker(variant)
     cells = config.cells()
     n_images = len(cells) * config.images
-    print(f"detectability benchmark: {len(cells)} cells x {config.images} images = {n_images} "
-          f"images, {config.spp} spp, workers={workers}")
+    print(
+        f"detectability benchmark: {len(cells)} cells x {config.images} images = {n_images} "
+        f"images, {config.spp} spp, workers={workers}"
+    )
 
     # --- Crops: the study as it runs, from scratch in a temporary folder
     with tempfile.TemporaryDirectory() as tmp:
@@ -66,8 +80,11 @@ def bench_detectability(config: StudyConfig, variant: str | None = None, full_fr
         manifest = run_study(config, Path(tmp) / "run", variant=variant, workers=workers)
         crop_s = time.perf_counter() - t0
         crop_rates = pd.read_csv(Path(tmp) / "run" / "summary.csv")
-    print(f"  crops:       {crop_s:7.1f} s wall for the whole study, {n_images / crop_s:7.1f} images/s "
-          f"(variant {manifest['variant']}; stage CPU s: {manifest['stage_cpu_s']})")
+    print(
+        f"  crops:       {crop_s:7.1f} s wall for the whole study, "
+        f"{n_images / crop_s:7.1f} images/s "
+        f"(variant {manifest['variant']}; stage CPU s: {manifest['stage_cpu_s']})"
+    )
 
     # --- Full frames: a few cells, extrapolated to the grid
     picks = [cells[int(i)] for i in np.linspace(0, len(cells) - 1, max(1, full_frame_cells))]
@@ -75,19 +92,35 @@ def bench_detectability(config: StudyConfig, variant: str | None = None, full_fr
     for cell in picks:
         result = _full_frame_cell(config, cell, FULL_FRAME_IMAGES)
         full.append(result)
-        row = crop_rates[(crop_rates.size_mm == cell.size_mm) & (crop_rates.alpha_deg == cell.alpha_deg)
-                         & (crop_rates.phi_deg == cell.phi_deg)
-                         & (crop_rates.lighting == cell.lighting)]
-        print(f"  full frame {cell.key}: render {result['render_s']:.1f} s, per image response "
-              f"{result['response_s_per_image']:.2f} s + detect {result['detect_s_per_image']:.2f} s,"
-              f" detection rate {result['rate']:.2f} (crop: {row.detection_rate.iloc[0]:.2f})")
-    per_cell = np.mean([r["render_s"] + config.images * (r["response_s_per_image"]
-                        + r["detect_s_per_image"]) for r in full])
+        row = crop_rates[
+            (crop_rates.size_mm == cell.size_mm)
+            & (crop_rates.alpha_deg == cell.alpha_deg)
+            & (crop_rates.phi_deg == cell.phi_deg)
+            & (crop_rates.lighting == cell.lighting)
+        ]
+        print(
+            f"  full frame {cell.key}: render {result['render_s']:.1f} s, per image response "
+            f"{result['response_s_per_image']:.2f} s + detect {result['detect_s_per_image']:.2f} s,"
+            f" detection rate {result['rate']:.2f} (crop: {row.detection_rate.iloc[0]:.2f})"
+        )
+    per_cell = np.mean(
+        [
+            r["render_s"] + config.images * (r["response_s_per_image"] + r["detect_s_per_image"])
+            for r in full
+        ]
+    )
     full_s = per_cell * len(cells)
-    print(f"  full frames: {full_s:7.1f} s estimated for the whole study "
-          f"({n_images / full_s:.2f} images/s), from {len(picks)} cells")
+    print(
+        f"  full frames: {full_s:7.1f} s estimated for the whole study "
+        f"({n_images / full_s:.2f} images/s), from {len(picks)} cells"
+    )
     print(f"  ratio full-frame / crop: {full_s / crop_s:.0f}x")
-    summary = {"images": n_images, "crop_wall_s": crop_s, "crop_images_per_s": n_images / crop_s,
-               "full_frame_est_s": full_s, "ratio": full_s / crop_s,
-               "variant": manifest["variant"]}
+    summary = {
+        "images": n_images,
+        "crop_wall_s": crop_s,
+        "crop_images_per_s": n_images / crop_s,
+        "full_frame_est_s": full_s,
+        "ratio": full_s / crop_s,
+        "variant": manifest["variant"],
+    }
     return summary

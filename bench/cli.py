@@ -6,6 +6,7 @@ Bad input gets one line naming the option and the allowed range, exit code 2, no
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from pathlib import Path
 
@@ -19,9 +20,17 @@ from bench.detectability import (
 
 QUICK = {"sizes": (8.8, 13.2), "alphas": (0.0, 60.0, 85.0), "phis": (0.0, 30.0, 60.0), "images": 20}
 OPTION_OF_FIELD = {
-    "sizes_mm": "--sizes", "alphas_deg": "--alphas", "phis_deg": "--phis", "images": "--images",
-    "distance_mm": "--distance", "lightings": "--lighting", "dictionary": "--dictionary",
-    "spp": "--spp", "out": "--out", "variant": "--variant", "workers": "--workers",
+    "sizes_mm": "--sizes",
+    "alphas_deg": "--alphas",
+    "phis_deg": "--phis",
+    "images": "--images",
+    "distance_mm": "--distance",
+    "lightings": "--lighting",
+    "dictionary": "--dictionary",
+    "spp": "--spp",
+    "out": "--out",
+    "variant": "--variant",
+    "workers": "--workers",
 }
 
 
@@ -37,37 +46,72 @@ def _floats(option: str):
         try:
             values = tuple(float(v) for v in text.split(",") if v.strip())
         except ValueError:
-            raise argparse.ArgumentTypeError(f"{option}: {text!r} is not a comma-separated list "
-                                             "of numbers") from None
+            raise argparse.ArgumentTypeError(
+                f"{option}: {text!r} is not a comma-separated list of numbers"
+            ) from None
         if not values:
             raise argparse.ArgumentTypeError(f"{option}: needs at least one number")
         return values
+
     return parse
 
 
 def _add_study_options(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--sizes", type=_floats("--sizes"), metavar="MM,...",
-                   help=f"marker sizes in mm (default {','.join(f'{s:g}' for s in DEFAULT_SIZES_MM)})")
-    p.add_argument("--alphas", type=_floats("--alphas"), metavar="DEG,...",
-                   help="angular positions in degrees, 0..theta_max (default "
-                   f"{','.join(f'{a:g}' for a in DEFAULT_ALPHAS_DEG)})")
-    p.add_argument("--phis", type=_floats("--phis"), metavar="DEG,...",
-                   help="tilts about both in-plane axes, 0..89 degrees (default "
-                   f"{','.join(f'{a:g}' for a in DEFAULT_PHIS_DEG)})")
+    p.add_argument(
+        "--sizes",
+        type=_floats("--sizes"),
+        metavar="MM,...",
+        help=f"marker sizes in mm (default {','.join(f'{s:g}' for s in DEFAULT_SIZES_MM)})",
+    )
+    p.add_argument(
+        "--alphas",
+        type=_floats("--alphas"),
+        metavar="DEG,...",
+        help="angular positions in degrees, 0..theta_max (default "
+        f"{','.join(f'{a:g}' for a in DEFAULT_ALPHAS_DEG)})",
+    )
+    p.add_argument(
+        "--phis",
+        type=_floats("--phis"),
+        metavar="DEG,...",
+        help="tilts about both in-plane axes, 0..89 degrees (default "
+        f"{','.join(f'{a:g}' for a in DEFAULT_PHIS_DEG)})",
+    )
     p.add_argument("--images", type=int, metavar="N", help="images per cell (default 60)")
-    p.add_argument("--distance", type=float, metavar="MM", default=200.0,
-                   help="camera-marker distance in mm (default 200)")
-    p.add_argument("--lighting", nargs="+", metavar="PRESET", default=["sun"],
-                   help="one or more of lab, sun, canopy, backlit (default sun)")
+    p.add_argument(
+        "--distance",
+        type=float,
+        metavar="MM",
+        default=200.0,
+        help="camera-marker distance in mm (default 200)",
+    )
+    p.add_argument(
+        "--lighting",
+        nargs="+",
+        metavar="PRESET",
+        default=["sun"],
+        help="one or more of lab, sun, canopy, backlit (default sun)",
+    )
     p.add_argument("--dictionary", default="4x4_50", help="ArUco dictionary (default 4x4_50)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     p.add_argument("--spp", type=int, default=16, help="samples per pixel of the clean render")
-    p.add_argument("--variant", choices=("cuda_ad_rgb", "llvm_ad_rgb", "scalar_rgb"),
-                   help="Mitsuba variant (default: the fastest that works here)")
-    p.add_argument("--workers", type=int, default=1,
-                   help="processes (default 1: one process, Dr.Jit uses every core)")
-    p.add_argument("--quick", action="store_true",
-                   help="a small grid for a first look (2 sizes x 3 alphas x 3 phis x 20 images)")
+    p.add_argument(
+        "--variant",
+        choices=("cuda_ad_rgb", "llvm_ad_rgb", "scalar_rgb"),
+        help="Mitsuba variant (default: the fastest that works here)",
+    )
+    p.add_argument(
+        "--workers",
+        type=int,
+        default=os.cpu_count() or 1,
+        help="worker processes, one cell at a time each (default: one per core; 1 runs "
+        "in this process)",
+    )
+    p.add_argument(
+        "--quick",
+        action="store_true",
+        help="a small grid for a first look (2 sizes x 3 alphas x 3 phis x 20 images)",
+    )
 
 
 def study_config(args: argparse.Namespace) -> StudyConfig:
@@ -96,8 +140,9 @@ def default_out(config: StudyConfig, quick: bool) -> Path:
         import hashlib
         import json
 
-        digest = hashlib.sha256(json.dumps(config.to_json(), default=str, sort_keys=True)
-                                .encode()).hexdigest()[:8]
+        digest = hashlib.sha256(
+            json.dumps(config.to_json(), default=str, sort_keys=True).encode()
+        ).hexdigest()[:8]
         name = f"custom-{digest}"
     return Path("results") / "detectability" / name
 
@@ -109,11 +154,14 @@ def _cmd_detectability(args: argparse.Namespace) -> int:
     if args.workers < 1:
         raise StudyConfigError("workers", f"{args.workers}: must be >= 1")
     out = Path(args.out) if args.out else default_out(config, args.quick)
-    manifest = run_study(config, out, variant=args.variant, workers=args.workers,
-                         save_images=args.save_images)
-    print(f"wrote {out}/ ({manifest['cells_total']} cells, {manifest['cells_resumed']} resumed; "
-          f"{manifest['images_computed']} images in {manifest['wall_s']['cells_s']:.1f} s, "
-          f"{manifest['images_per_s'] or 0:.0f} images/s, variant {manifest['variant']})")
+    manifest = run_study(
+        config, out, variant=args.variant, workers=args.workers, save_images=args.save_images
+    )
+    print(
+        f"wrote {out}/ ({manifest['cells_total']} cells, {manifest['cells_resumed']} resumed; "
+        f"{manifest['images_computed']} images in {manifest['wall_s']['cells_s']:.1f} s, "
+        f"{manifest['images_per_s'] or 0:.0f} images/s, variant {manifest['variant']})"
+    )
     print(f"max phi with detection >= 95%: {out / 'max_phi.csv'}, plot {out / 'max_phi.png'}")
     return 0
 
@@ -122,8 +170,9 @@ def _cmd_bench_detectability(args: argparse.Namespace) -> int:
     from bench.benchmark import bench_detectability
 
     config = study_config(args)
-    bench_detectability(config, variant=args.variant, full_frame_cells=args.full_frame_cells,
-                        workers=args.workers)
+    bench_detectability(
+        config, variant=args.variant, full_frame_cells=args.full_frame_cells, workers=args.workers
+    )
     return 0
 
 
@@ -133,16 +182,24 @@ def _parser() -> argparse.ArgumentParser:
     study = sub.add_parser("detectability", help="rerun the marker-size detectability study")
     _add_study_options(study)
     study.add_argument("--out", help="run folder (default results/detectability/<name>)")
-    study.add_argument("--save-images", action="store_true",
-                       help="also write every 8-bit image detected on (PNG) for inspection")
+    study.add_argument(
+        "--save-images",
+        action="store_true",
+        help="also write every 8-bit image detected on (PNG) for inspection",
+    )
     study.set_defaults(func=_cmd_detectability)
     bench = sub.add_parser("bench", help="speed benchmarks (print their figures)")
     bench_sub = bench.add_subparsers(dest="benchmark", required=True, parser_class=_Parser)
-    bdet = bench_sub.add_parser("detectability", help="time the full default study, crops vs "
-                                "full frames")
+    bdet = bench_sub.add_parser(
+        "detectability", help="time the full default study, crops vs full frames"
+    )
     _add_study_options(bdet)
-    bdet.add_argument("--full-frame-cells", type=int, default=2,
-                      help="cells rendered as full 2592x1944 frames for the ratio (default 2)")
+    bdet.add_argument(
+        "--full-frame-cells",
+        type=int,
+        default=2,
+        help="cells rendered as full 2592x1944 frames for the ratio (default 2)",
+    )
     bdet.set_defaults(func=_cmd_bench_detectability)
     return parser
 
@@ -157,8 +214,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"whiskerbench {args.command}: error: {option}: {exc.detail}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print("interrupted: finished cells are kept; rerun the same command to resume",
-              file=sys.stderr)
+        print(
+            "interrupted: finished cells are kept; rerun the same command to resume",
+            file=sys.stderr,
+        )
         return 130
 
 

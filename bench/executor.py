@@ -38,8 +38,9 @@ def run_tasks(
                 bar.update()
             return
         ctx = multiprocessing.get_context("spawn")
-        with ProcessPoolExecutor(workers, mp_context=ctx, initializer=initializer,
-                                 initargs=initargs) as pool:
+        with ProcessPoolExecutor(
+            workers, mp_context=ctx, initializer=initializer, initargs=initargs
+        ) as pool:
             futures = [pool.submit(fn, task) for task in tasks]
             try:
                 for future in as_completed(futures):

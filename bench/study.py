@@ -16,8 +16,17 @@ from bench.atomic import atomic_path, check_writable, write_bytes, write_json
 from bench.detectability import Cell, StudyConfig, StudyConfigError, init_worker, run_cell
 from bench.executor import run_tasks
 
-PACKAGES = ("whiskerbench", "mitsuba", "drjit", "opencv-contrib-python-headless", "numpy",
-            "pandas", "pyarrow", "matplotlib", "trimesh")
+PACKAGES = (
+    "whiskerbench",
+    "mitsuba",
+    "drjit",
+    "opencv-contrib-python-headless",
+    "numpy",
+    "pandas",
+    "pyarrow",
+    "matplotlib",
+    "trimesh",
+)
 
 
 def package_versions() -> dict[str, str]:
@@ -53,8 +62,14 @@ def _cell_done(out_dir: Path, cell: Cell, config: StudyConfig, save_images: bool
     return True
 
 
-def run_study(config: StudyConfig, out_dir: Path, variant: str | None = None, workers: int = 1,
-              save_images: bool = False, progress: bool = True) -> dict:
+def run_study(
+    config: StudyConfig,
+    out_dir: Path,
+    variant: str | None = None,
+    workers: int = 1,
+    save_images: bool = False,
+    progress: bool = True,
+) -> dict:
     """Run (or resume) the study into ``out_dir`` and return its manifest.
 
     Finished cells (``cells/<key>.parquet``) are skipped, so rerunning an interrupted command
@@ -70,8 +85,10 @@ def run_study(config: StudyConfig, out_dir: Path, variant: str | None = None, wo
     config_path = out_dir / "config.json"
     if config_path.exists() and json.loads(config_path.read_text()) != config_json:
         raise StudyConfigError(
-            "out", f"{out_dir} holds a study with another configuration; "
-            "choose another --out or delete that folder")
+            "out",
+            f"{out_dir} holds a study with another configuration; "
+            "choose another --out or delete that folder",
+        )
     out_dir.mkdir(parents=True, exist_ok=True)
     write_json(config_path, config_json)
 
@@ -86,16 +103,24 @@ def run_study(config: StudyConfig, out_dir: Path, variant: str | None = None, wo
     stage = {"render_s": 0.0, "response_s": 0.0, "detect_s": 0.0}
     t_cells = time.perf_counter()
     tasks = [_CellTask(config, c, out_dir, save_images) for c in todo]
-    for timings in run_tasks(_run_task, tasks, workers, init_worker, (chosen, threads),
-                             desc="detectability cells", progress=progress):
+    for timings in run_tasks(
+        _run_task,
+        tasks,
+        workers,
+        init_worker,
+        (chosen, threads),
+        desc="detectability cells",
+        progress=progress,
+    ):
         for key in stage:
             stage[key] += timings[key]
     wall["cells_s"] = time.perf_counter() - t_cells
 
     # --- Tables
     t_tab = time.perf_counter()
-    images = pd.concat([pd.read_parquet(out_dir / "cells" / f"{c.key}.parquet") for c in cells],
-                       ignore_index=True)
+    images = pd.concat(
+        [pd.read_parquet(out_dir / "cells" / f"{c.key}.parquet") for c in cells], ignore_index=True
+    )
     images = images.sort_values(report.CELL_KEYS + ["image_index"], kind="stable")
     with atomic_path(out_dir / "images.parquet") as tmp:
         images.to_parquet(tmp, index=False)
@@ -107,9 +132,11 @@ def run_study(config: StudyConfig, out_dir: Path, variant: str | None = None, wo
 
     # --- Plots
     t_plot = time.perf_counter()
-    for name, plot, table in (("max_phi.png", report.plot_max_phi, max_phi),
-                              ("heatmap.png", report.plot_heatmap, summary),
-                              ("pose_error.png", report.plot_pose_error, summary)):
+    for name, plot, table in (
+        ("max_phi.png", report.plot_max_phi, max_phi),
+        ("heatmap.png", report.plot_heatmap, summary),
+        ("pose_error.png", report.plot_pose_error, summary),
+    ):
         with atomic_path(out_dir / name) as tmp:
             plot(table, tmp)
     wall["plots_s"] = time.perf_counter() - t_plot

@@ -12,8 +12,10 @@ which fits straight lines to the marker's 4 border edges in a virtual pinhole vi
 marker (where they are exactly straight) and intersects them. It needs the camera model
 (``detect_markers(..., camera=...)``). Why: on noise-free anti-aliased renders OpenCV's
 ``"subpix"`` (cornerSubPix) puts the outer, L-shaped corners 0.35-0.5 px inside the true corner
-at every window size, and ``"contour"`` and ``"apriltag"`` are off by 0.5-1 px; ``"lines"`` has
-a median error of about 0.1 px or less (see :mod:`pipeline.refine`).
+at every window size, and ``"contour"`` and ``"apriltag"`` are off by 0.5-1 px; on the same
+renders ``"lines"`` has a median error of 0.02 px and a maximum of 0.11 px over alpha 0-85 deg and
+phi 0-60 deg (see :mod:`pipeline.refine`). It costs about 1 ms per marker. If it fails for a
+detection, that detection keeps OpenCV's unrefined corners.
 """
 
 from __future__ import annotations
@@ -111,8 +113,12 @@ def detect_markers(
     if lines:
         modules = int(get_dictionary(config.dictionary).markerSize) + 2
         detections = [
-            Detection(d.marker_id, refine_corners_by_edges(
-                image, d.corners_px, camera, modules, (int(offset[0]), int(offset[1]))))
+            Detection(
+                d.marker_id,
+                refine_corners_by_edges(
+                    image, d.corners_px, camera, modules, (int(offset[0]), int(offset[1]))
+                ),
+            )
             for d in detections
         ]
     return detections

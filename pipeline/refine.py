@@ -31,8 +31,14 @@ where two straight edges meet, so it is found here from the edges instead:
    corners are then mapped back to fisheye pixels.
 
 Intensities are linearized first (``transfer="srgb"``, the camera response's default transfer
-curve): areas and levels only add up in linear light; on sRGB codes the corners come out
-about 0.3 px inside.
+curve): areas and levels only add up in linear light; taken as linear, sRGB codes put the
+corners 0.1-0.3 px inside.
+
+Accuracy (corner error against ground truth, px): on noise-free 64-spp renders of the
+detectability study (lab lighting, 200 mm, alpha 0-85 deg, phi 0-60 deg, where OpenCV finds
+the marker) median 0.02 and max 0.11 for 13.2 mm, median 0.02 and max 0.09 for 8.8 mm, where
+``subpix`` has median 0.42-0.52 and max 1.1-1.2; on exactly ray-cast images (no renderer)
+median 0.01. Cost: about 1 ms per marker for a 100-px crop, 10x OpenCV's detection itself.
 
 If refinement fails (too little contrast across an edge, an edge with too few consistent
 points or too much scatter about its line, nearly parallel edges, samples outside the image
@@ -41,6 +47,8 @@ corners are returned unchanged: a bad image never raises.
 """
 
 from __future__ import annotations
+
+from functools import lru_cache
 
 import cv2
 import numpy as np
@@ -81,15 +89,27 @@ class _RefineError(Exception):
     """Internal: refinement failed; the caller keeps the input corners."""
 
 
-def _to_fisheye(virt: np.ndarray, camera: FisheyeCamera, R_virt_cam: np.ndarray,
-                f_v: float) -> np.ndarray:
+def _to_fisheye(
+    virt: np.ndarray, camera: FisheyeCamera, R_virt_cam: np.ndarray, f_v: float
+) -> np.ndarray:
     """Virtual pixels (..., 2) -> full-image fisheye pixels (..., 2); NaN outside the circle."""
     rays = virt @ (R_virt_cam[:2] / f_v) + R_virt_cam[2]
     return camera.project(rays)
 
 
-def _edge_lines(patch: np.ndarray, corners_v: np.ndarray, modules: int,
-                to_patch) -> tuple[np.ndarray, np.ndarray]:
+@lru_cache(maxsize=64)
+def _profile_ends(n_along: int, modules: int) -> np.ndarray:
+    """(3, 4 edges, n_along, 3) homogeneous marker points (modules): each profile's inner end,
+    its point on the edge and its outer end."""
+    t = np.linspace(EDGE_SPAN[0], EDGE_SPAN[1], n_along)
+    base = (_SQUARE[:, None, :] + t[:, None] * _ALONG[:, None, :]) * modules
+    ends = base + _DEPTH * _OUTWARD[:, None, :]
+    return np.concatenate([ends, np.ones(ends.shape[:-1] + (1,))], axis=-1)
+
+
+def _edge_lines(
+    patch: np.ndarray, corners_v: np.ndarray, modules: int, to_patch
+) -> tuple[np.ndarray, np.ndarray]:
     """One sub-pixel line n . x = d per outer edge, in virtual pixels: normals (4, 2), d (4,).
 
     ``patch`` is the linearized image; ``to_patch`` maps virtual pixels to its pixels.
@@ -97,15 +117,17 @@ def _edge_lines(patch: np.ndarray, corners_v: np.ndarray, modules: int,
     length = np.linalg.norm(corners_v[_PREV] - corners_v, axis=1)
     if length.min() < 3.0 * modules / 4:
         raise _RefineError("marker too small")
-    H = cv2.getPerspectiveTransform((_SQUARE * modules).astype(np.float32),
-                                    corners_v.astype(np.float32))
-    n_along = min(max(round((EDGE_SPAN[1] - EDGE_SPAN[0]) * length.max() / ALONG_STEP_PX),
-                      MIN_PROFILES), MAX_PROFILES)
-    t = np.linspace(EDGE_SPAN[0], EDGE_SPAN[1], n_along)
-    # (3, 4 edges, n_along, 2): each profile's inner end, edge point and outer end, in modules
-    base = (_SQUARE[:, None, :] + t[:, None] * _ALONG[:, None, :]) * modules
-    h = (base + _DEPTH * _OUTWARD[:, None, :]) @ H[:, :2].T + H[:, 2]
-    ends = h[..., :2] / h[..., 2:]  # virtual pixels
+    H = cv2.getPerspectiveTransform(
+        (_SQUARE * modules).astype(np.float32), corners_v.astype(np.float32)
+    )
+    n_along = min(
+        max(round((EDGE_SPAN[1] - EDGE_SPAN[0]) * length.max() / ALONG_STEP_PX), MIN_PROFILES),
+        MAX_PROFILES,
+    )
+    h = _profile_ends(n_along, modules) @ H.T
+    if not (np.isfinite(h).all() and h[..., 2].min() > 0):
+        raise _RefineError("degenerate corners")
+    ends = h[..., :2] / h[..., 2:]  # (3, 4, n_along, 2): in, edge and out ends, virtual pixels
     p_in, p_edge, p_out = ends
     delta = p_out - p_in
     span = np.sqrt((delta * delta).sum(axis=-1))  # (4, n_along)
@@ -113,6 +135,8 @@ def _edge_lines(patch: np.ndarray, corners_v: np.ndarray, modules: int,
     ds = span / (n_s - 1)
     frac = np.linspace(0.0, 1.0, n_s)
     t_edge = ((p_edge - p_in) * delta).sum(axis=-1) / (span * span)  # where the edge should be
+    if not (span.min() > 0 and t_edge.min() > 0.05 and t_edge.max() < 0.95):
+        raise _RefineError("degenerate corners")
     # A profile's image in the fisheye is a smooth curve: the quadratic through the images of
     # its ends and edge point is exact to well under 0.001 px over its few pixels.
     f_in, f_edge, f_out = to_patch(ends)
@@ -123,9 +147,13 @@ def _edge_lines(patch: np.ndarray, corners_v: np.ndarray, modules: int,
     curve = frac * (frac - 1.0)
     mx = a[..., 0, None] + frac * b[..., 0, None] + curve * c[..., 0, None]
     my = a[..., 1, None] + frac * b[..., 1, None] + curve * c[..., 1, None]
-    values = cv2.remap(patch, mx.astype(np.float32).reshape(-1, n_s),
-                       my.astype(np.float32).reshape(-1, n_s), cv2.INTER_LINEAR,
-                       borderMode=cv2.BORDER_REPLICATE).reshape(4, n_along, n_s)
+    values = cv2.remap(
+        patch,
+        mx.astype(np.float32).reshape(-1, n_s),
+        my.astype(np.float32).reshape(-1, n_s),
+        cv2.INTER_LINEAR,
+        borderMode=cv2.BORDER_REPLICATE,
+    ).reshape(4, n_along, n_s)
 
     # Levels: black per edge from the inner half of the profiles' black part; white per
     # profile from its outer half (it follows shading).
@@ -159,8 +187,9 @@ def _edge_lines(patch: np.ndarray, corners_v: np.ndarray, modules: int,
     return _fit_lines(points, found, max(0.1 * length.min() / modules, 0.15))
 
 
-def _fit_lines(points: np.ndarray, found: np.ndarray,
-               max_rms: float) -> tuple[np.ndarray, np.ndarray]:
+def _fit_lines(
+    points: np.ndarray, found: np.ndarray, max_rms: float
+) -> tuple[np.ndarray, np.ndarray]:
     """Robust total-least-squares lines through (4, m, 2) points: normals (4, 2), offsets (4,).
 
     Points beyond 3 robust sigmas (at least 0.05 px) of a first fit are dropped.
@@ -196,13 +225,20 @@ def _intersect(normal: np.ndarray, offset: np.ndarray) -> np.ndarray:
     det = n1[:, 0] * n2[:, 1] - n1[:, 1] * n2[:, 0]
     if np.any(np.abs(det) < 0.1):  # sine of the angle between adjacent edges
         raise _RefineError("nearly parallel edges")
-    return np.stack([d1 * n2[:, 1] - d2 * n1[:, 1], n1[:, 0] * d2 - n2[:, 0] * d1], axis=1) / det[
-        :, None
-    ]
+    return (
+        np.stack([d1 * n2[:, 1] - d2 * n1[:, 1], n1[:, 0] * d2 - n2[:, 0] * d1], axis=1)
+        / det[:, None]
+    )
 
 
-def _refine(image: np.ndarray, start: np.ndarray, camera: FisheyeCamera, modules: int,
-            offset: np.ndarray, lut: np.ndarray) -> np.ndarray:
+def _refine(
+    image: np.ndarray,
+    start: np.ndarray,
+    camera: FisheyeCamera,
+    modules: int,
+    offset: np.ndarray,
+    lut: np.ndarray,
+) -> np.ndarray:
     rays, valid = camera.unproject(start)
     if not valid.all():
         raise _RefineError("a corner lies outside the image circle")
@@ -211,23 +247,29 @@ def _refine(image: np.ndarray, start: np.ndarray, camera: FisheyeCamera, modules
     if np.any(q[:, 2] <= 1e-6):
         raise _RefineError("the marker spans too wide an angle")
     corners_v = q[:, :2] / q[:, 2:]
-    f_v = (np.linalg.norm(start[_PREV] - start, axis=1).sum()
-           / np.linalg.norm(corners_v[_PREV] - corners_v, axis=1).sum())
+    f_v = (
+        np.linalg.norm(start[_PREV] - start, axis=1).sum()
+        / np.linalg.norm(corners_v[_PREV] - corners_v, axis=1).sum()
+    )
     corners_v *= f_v
     # The image region the passes may sample: the corners' box plus 2 modules and 3 px.
     margin = 2.0 * np.linalg.norm(start[_PREV] - start, axis=1).max() / modules + 3.0
     lo = np.maximum(np.floor(start.min(axis=0) - offset - margin), 0).astype(int)
-    hi = np.minimum(np.ceil(start.max(axis=0) - offset + margin) + 1,
-                    [image.shape[1], image.shape[0]]).astype(int)
-    patch = lut[image[lo[1]:hi[1], lo[0]:hi[0]]]
+    hi = np.minimum(
+        np.ceil(start.max(axis=0) - offset + margin) + 1, [image.shape[1], image.shape[0]]
+    ).astype(int)
+    patch = lut[image[lo[1] : hi[1], lo[0] : hi[0]]]
     shift = offset + lo
 
     def to_patch(virt: np.ndarray) -> np.ndarray:
         px = _to_fisheye(virt, camera, R_virt_cam, f_v) - shift
         if not np.isfinite(px).all():
             raise _RefineError("edge samples outside the image circle")
-        if (px.min() < 0 or px[..., 0].max() > patch.shape[1] - 1
-                or px[..., 1].max() > patch.shape[0] - 1):
+        if (
+            px.min() < 0
+            or px[..., 0].max() > patch.shape[1] - 1
+            or px[..., 1].max() > patch.shape[0] - 1
+        ):
             raise _RefineError("edge samples leave the image")
         return px
 
@@ -240,8 +282,14 @@ def _refine(image: np.ndarray, start: np.ndarray, camera: FisheyeCamera, modules
 
 
 def refine_corners_by_edges(
-    image: np.ndarray, corners_px: np.ndarray, camera: FisheyeCamera, modules: int,
-    offset_px: tuple[int, int] = (0, 0), *, transfer: str = "srgb", max_shift_px: float = 2.5,
+    image: np.ndarray,
+    corners_px: np.ndarray,
+    camera: FisheyeCamera,
+    modules: int,
+    offset_px: tuple[int, int] = (0, 0),
+    *,
+    transfer: str = "srgb",
+    max_shift_px: float = 2.5,
 ) -> np.ndarray:
     """Refine a marker's 4 corners from its straight border edges (see the module docstring).
 
@@ -263,8 +311,9 @@ def refine_corners_by_edges(
         return start.copy()
     offset = np.asarray(offset_px, dtype=float).reshape(2)
     try:
-        corners = _refine(image, start, camera, int(modules), offset, _LUTS[transfer])
-    except (_RefineError, np.linalg.LinAlgError):
+        with np.errstate(all="ignore"):  # failures are detected explicitly, not by warnings
+            corners = _refine(image, start, camera, int(modules), offset, _LUTS[transfer])
+    except (_RefineError, np.linalg.LinAlgError, cv2.error):
         return start.copy()
     if np.any(np.linalg.norm(corners - start, axis=1) > max_shift_px):
         return start.copy()

@@ -60,10 +60,17 @@ def _is_jit() -> bool:
 TRACED = ("sky", "sun", "position", "normal", "albedo")
 
 
-def _trace_jit(scene: mi.Scene, integrator: mi.Integrator | None, lighting: Lighting,
-               dirs: np.ndarray, seed: int) -> dict[str, np.ndarray]:
+def _trace_jit(
+    scene: mi.Scene,
+    integrator: mi.Integrator | None,
+    lighting: Lighting,
+    dirs: np.ndarray,
+    seed: int,
+) -> dict[str, np.ndarray]:
     n = len(dirs)
-    ray = mi.RayDifferential3f(mi.Ray3f(mi.Point3f(0.0, 0.0, 0.0), mi.Vector3f(dirs.T.astype(np.float32))))
+    ray = mi.RayDifferential3f(
+        mi.Ray3f(mi.Point3f(0.0, 0.0, 0.0), mi.Vector3f(dirs.T.astype(np.float32)))
+    )
     si = scene.ray_intersect(ray)
     # Lambertian surfaces are one-sided in Mitsuba: seen from behind they are black.
     front = si.is_valid() & (dr.dot(si.sh_frame.n, -ray.d) > 0)
@@ -79,7 +86,9 @@ def _trace_jit(scene: mi.Scene, integrator: mi.Integrator | None, lighting: Ligh
         to_sun = mi.Vector3f(lighting.sun.to_sun_cam)
         f = bsdf.eval(mi.BSDFContext(), si, si.to_local(to_sun), front)
         lit = front & ~scene.ray_test(si.spawn_ray(to_sun), front)
-        out["sun"] = dr.select(lit, f * lighting.sun.irradiance * mi.Color3f(lighting.sun.color), 0.0)
+        out["sun"] = dr.select(
+            lit, f * lighting.sun.irradiance * mi.Color3f(lighting.sun.color), 0.0
+        )
     if integrator is not None:
         sampler = mi.load_dict({"type": "independent"})
         sampler.seed(seed, n)
@@ -88,8 +97,13 @@ def _trace_jit(scene: mi.Scene, integrator: mi.Integrator | None, lighting: Ligh
     return {k: v.numpy().T for k, v in out.items()}
 
 
-def _trace_scalar(scene: mi.Scene, integrator: mi.Integrator | None, lighting: Lighting,
-                  dirs: np.ndarray, seed: int) -> dict[str, np.ndarray]:
+def _trace_scalar(
+    scene: mi.Scene,
+    integrator: mi.Integrator | None,
+    lighting: Lighting,
+    dirs: np.ndarray,
+    seed: int,
+) -> dict[str, np.ndarray]:
     """The same computation one ray at a time, for the scalar_rgb fallback (slow)."""
     out = {k: np.zeros((len(dirs), 3), np.float32) for k in TRACED}
     out["position"][:] = np.nan
@@ -113,7 +127,9 @@ def _trace_scalar(scene: mi.Scene, integrator: mi.Integrator | None, lighting: L
             to_sun = mi.Vector3f(lighting.sun.to_sun_cam)
             if not scene.ray_test(si.spawn_ray(to_sun)):
                 f = bsdf.eval(mi.BSDFContext(), si, si.to_local(to_sun))
-                out["sun"][i] = np.array(f) * lighting.sun.irradiance * np.asarray(lighting.sun.color)
+                out["sun"][i] = (
+                    np.array(f) * lighting.sun.irradiance * np.asarray(lighting.sun.color)
+                )
     return out
 
 
@@ -123,8 +139,14 @@ SKY_METHODS = ("irradiance", "integrator")
 class FisheyeRenderer:
     """Renders windows of one marker scene through a fisheye camera model."""
 
-    def __init__(self, camera: FisheyeCamera, scene: MarkerScene, spp: int = 16,
-                 shadow_spp: int = 4, sky: str = "irradiance") -> None:
+    def __init__(
+        self,
+        camera: FisheyeCamera,
+        scene: MarkerScene,
+        spp: int = 16,
+        shadow_spp: int = 4,
+        sky: str = "irradiance",
+    ) -> None:
         """``sky``: ``"irradiance"`` (exact and noise-free where nothing occludes the sky, as for
         the study's lone marker; :mod:`renderers.sky_irradiance`) or ``"integrator"`` (Mitsuba's
         ``direct`` integrator, Monte Carlo, correct with occluders)."""
@@ -163,9 +185,14 @@ class FisheyeRenderer:
             traced["position"][:] = np.nan
             idx = np.flatnonzero(valid)
             for start in range(0, len(idx), CHUNK_RAYS):
-                part = idx[start:start + CHUNK_RAYS]
-                out = self._trace(self.scene.scene, self.integrator, lighting, _pad(dirs[part]),
-                                  (seed * 7919 + chunk) & 0xFFFFFFFF)
+                part = idx[start : start + CHUNK_RAYS]
+                out = self._trace(
+                    self.scene.scene,
+                    self.integrator,
+                    lighting,
+                    _pad(dirs[part]),
+                    (seed * 7919 + chunk) & 0xFFFFFFFF,
+                )
                 chunk += 1
                 for k in TRACED:
                     traced[k][part] = out[k][: len(part)]
@@ -180,9 +207,9 @@ class FisheyeRenderer:
         inside = self.camera.unproject(window.pixel_centres())[1]
         return RenderedWindow(window, sky, sun, shadow, inside)
 
-
-    def _sky_radiance(self, dirs: np.ndarray, valid: np.ndarray,
-                      traced: dict[str, np.ndarray]) -> np.ndarray:
+    def _sky_radiance(
+        self, dirs: np.ndarray, valid: np.ndarray, traced: dict[str, np.ndarray]
+    ) -> np.ndarray:
         """Exact sky term: albedo E(n) / pi on surfaces, the sky itself where rays escape."""
         sky = self.scene.lighting.sky
         color = np.asarray(sky.color, dtype=np.float32)
@@ -203,8 +230,13 @@ def _pad(rays: np.ndarray) -> np.ndarray:
     return np.concatenate([rays, np.broadcast_to(rays[:1], (CHUNK_RAYS - len(rays), 3))])
 
 
-def canopy_visibility(canopy: CanopyScene, lighting: Lighting, rendered: RenderedWindow,
-                      n_images: int, rng: np.random.Generator) -> np.ndarray:
+def canopy_visibility(
+    canopy: CanopyScene,
+    lighting: Lighting,
+    rendered: RenderedWindow,
+    n_images: int,
+    rng: np.random.Generator,
+) -> np.ndarray:
     """(N, H, W) float32 sun visibility through the leaf canopy, a new canopy shift per image.
 
     Shifting the canopy by ``o`` is the same as shifting the shadow-ray origins by ``-o``; the
@@ -218,16 +250,19 @@ def canopy_visibility(canopy: CanopyScene, lighting: Lighting, rendered: Rendere
     hit = np.flatnonzero(~np.isnan(pos[:, 0]))
     shift = rng.uniform(-spec.max_shift_mm, spec.max_shift_mm, (n_images, 2))
     origins = pos[hit][None] - (shift[:, :1] * u + shift[:, 1:] * v)[:, None, :]
-    dirs = _jitter_in_cone(np.asarray(sun.to_sun_cam), np.radians(sun.angular_radius_deg),
-                           (n_images, len(hit)), rng)
+    dirs = _jitter_in_cone(
+        np.asarray(sun.to_sun_cam), np.radians(sun.angular_radius_deg), (n_images, len(hit)), rng
+    )
     vis = np.ones((n_images, len(pos)), np.float32)
     vis[:, hit] = ~_ray_test(canopy.scene, origins.reshape(-1, 3), dirs.reshape(-1, 3)).reshape(
-        n_images, len(hit))
+        n_images, len(hit)
+    )
     return vis.reshape((n_images,) + rendered.shadow_points_cam.shape[:3]).mean(axis=-1)
 
 
-def _jitter_in_cone(axis: np.ndarray, half_angle: float, shape: tuple[int, ...],
-                    rng: np.random.Generator) -> np.ndarray:
+def _jitter_in_cone(
+    axis: np.ndarray, half_angle: float, shape: tuple[int, ...], rng: np.random.Generator
+) -> np.ndarray:
     """Unit directions uniform over the disk of angular radius ``half_angle`` around ``axis``."""
     u = np.cross(axis, [0.0, 0.0, 1.0] if abs(axis[2]) < 0.9 else [1.0, 0.0, 0.0])
     u /= np.linalg.norm(u)
@@ -244,8 +279,14 @@ def _ray_test(scene: mi.Scene, origins: np.ndarray, dirs: np.ndarray) -> np.ndar
         out = np.zeros(len(origins), bool)
         for start in range(0, len(origins), CHUNK_RAYS):
             n = min(CHUNK_RAYS, len(origins) - start)
-            o, d = (_pad(a[start:start + n]).T.astype(np.float32) for a in (origins, dirs))
-            out[start:start + n] = scene.ray_test(mi.Ray3f(mi.Point3f(o), mi.Vector3f(d))).numpy()[:n]
+            o, d = (_pad(a[start : start + n]).T.astype(np.float32) for a in (origins, dirs))
+            out[start : start + n] = scene.ray_test(
+                mi.Ray3f(mi.Point3f(o), mi.Vector3f(d))
+            ).numpy()[:n]
         return out
-    return np.array([bool(scene.ray_test(mi.Ray3f(mi.Point3f(*o), mi.Vector3f(*d))))
-                     for o, d in zip(origins.tolist(), dirs.tolist(), strict=True)])
+    return np.array(
+        [
+            bool(scene.ray_test(mi.Ray3f(mi.Point3f(*o), mi.Vector3f(*d))))
+            for o, d in zip(origins.tolist(), dirs.tolist(), strict=True)
+        ]
+    )

@@ -29,7 +29,9 @@ def sky_directions(rows: int, cols: int) -> np.ndarray:
     theta = v[:, None] * math.pi
     phi = u[None, :] * 2 * math.pi
     return np.stack(
-        np.broadcast_arrays(np.sin(theta) * np.sin(phi), np.cos(theta), -np.sin(theta) * np.cos(phi)),
+        np.broadcast_arrays(
+            np.sin(theta) * np.sin(phi), np.cos(theta), -np.sin(theta) * np.cos(phi)
+        ),
         axis=-1,
     )
 
@@ -120,5 +122,6 @@ class CanopyScene:
             raise ValueError(f"lighting {lighting.name!r} has no sun or no canopy")
         mesh = canopy_mesh(lighting.sun, lighting.canopy)
         self.scene = mi.load_dict(
-            {"type": "scene", "leaves": mesh_to_mitsuba("leaves", mesh, _diffuse(0.3))}, optimize=False
+            {"type": "scene", "leaves": mesh_to_mitsuba("leaves", mesh, _diffuse(0.3))},
+            optimize=False,
         )

@@ -31,7 +31,9 @@ def _sphere_grid(rows: int, cols: int) -> tuple[np.ndarray, np.ndarray, np.ndarr
     phi = (np.arange(cols) + 0.5) * 2 * math.pi / cols
     t, p = np.meshgrid(theta, phi, indexing="ij")
     dirs = np.stack([np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)], axis=-1)
-    d_omega = (np.cos(t - 0.5 * math.pi / rows) - np.cos(t + 0.5 * math.pi / rows)) * 2 * math.pi / cols
+    d_omega = (
+        (np.cos(t - 0.5 * math.pi / rows) - np.cos(t + 0.5 * math.pi / rows)) * 2 * math.pi / cols
+    )
     return dirs, d_omega, np.stack([t, p], axis=-1)
 
 
@@ -43,8 +45,8 @@ def irradiance_direct(sky: Sky, normals: np.ndarray) -> np.ndarray:
     normals = np.asarray(normals, dtype=np.float32).reshape(-1, 3)
     out = np.empty(len(normals))
     for start in range(0, len(normals), 256):  # bounded memory: 256 x 32768 cosines at a time
-        cosines = normals[start:start + 256] @ dirs.T
-        out[start:start + 256] = np.maximum(cosines, 0.0) @ weights
+        cosines = normals[start : start + 256] @ dirs.T
+        out[start : start + 256] = np.maximum(cosines, 0.0) @ weights
     return out
 
 

@@ -37,7 +37,12 @@ _chosen: str | None = None
 
 def llvm_major(path: str) -> int | None:
     """LLVM major version read from a library path (libLLVM-19.so, libLLVM.so.19.1, llvm-19/)."""
-    for pattern in (r"libLLVM-(\d+)", r"libLLVM\.so\.(\d+)", r"llvm-(\d+)/", r"libLLVM\.(\d+)\.dylib"):
+    for pattern in (
+        r"libLLVM-(\d+)",
+        r"libLLVM\.so\.(\d+)",
+        r"llvm-(\d+)/",
+        r"libLLVM\.(\d+)\.dylib",
+    ):
         m = re.search(pattern, path)
         if m:
             return int(m.group(1))

@@ -29,7 +29,11 @@ class Window:
 
     @classmethod
     def around(
-        cls, points_px: np.ndarray, camera: FisheyeCamera, margin_px: int = 16, min_size_px: int = 64
+        cls,
+        points_px: np.ndarray,
+        camera: FisheyeCamera,
+        margin_px: int = 16,
+        min_size_px: int = 64,
     ) -> Window:
         """The window holding ``points_px`` plus a margin, at least ``min_size_px`` square, clipped.
 

@@ -1,4 +1,4 @@
-"""Fisheye camera models, exact past 90 degrees, shared by the renderer, the labels and the pipeline.
+"""Fisheye camera models, exact past 90 degrees, shared by renderer, labels and pipeline.
 
 Both models are radially symmetric: a ray at angle ``theta`` from the optical axis lands at
 normalized radius ``d(theta)`` and is scaled by the focal lengths into pixels:
@@ -100,7 +100,10 @@ class FisheyeCamera:
         safe_rho = np.where(rho > 0, rho, 1.0)
         scale = np.where(rho > 0, d / safe_rho, 0.0)
         px = np.stack(
-            [self.fx_px * scale * p[..., 0] + self.cx_px, self.fy_px * scale * p[..., 1] + self.cy_px],
+            [
+                self.fx_px * scale * p[..., 0] + self.cx_px,
+                self.fy_px * scale * p[..., 1] + self.cy_px,
+            ],
             axis=-1,
         )
         outside = (theta > self.theta_max_rad) | ((rho == 0) & (p[..., 2] <= 0))
@@ -133,7 +136,9 @@ class FisheyeCamera:
     # --- Interchange
     def to_opencv(self) -> dict[str, Any]:
         """OpenCV fisheye form: K (3x3), D (4,), image size (w, h). Exact below 90 degrees only."""
-        K = np.array([[self.fx_px, 0.0, self.cx_px], [0.0, self.fy_px, self.cy_px], [0.0, 0.0, 1.0]])
+        K = np.array(
+            [[self.fx_px, 0.0, self.cx_px], [0.0, self.fy_px, self.cy_px], [0.0, 0.0, 1.0]]
+        )
         return {"K": K, "D": np.array(self.k), "size": (self.width_px, self.height_px)}
 
     @classmethod
@@ -162,7 +167,11 @@ class FisheyeCamera:
         cv = self.to_opencv()
         return {
             "model": asdict(self),
-            "opencv_fisheye": {"K": cv["K"].tolist(), "D": cv["D"].tolist(), "size": list(cv["size"])},
+            "opencv_fisheye": {
+                "K": cv["K"].tolist(),
+                "D": cv["D"].tolist(),
+                "size": list(cv["size"]),
+            },
         }
 
     @classmethod
@@ -171,7 +180,11 @@ class FisheyeCamera:
         model = data.get("model")
         if not isinstance(model, dict):
             raise ValueError("camera file: missing the 'model' object")
-        missing = [f for f in ("width_px", "height_px", "fx_px", "fy_px", "cx_px", "cy_px") if f not in model]
+        missing = [
+            f
+            for f in ("width_px", "height_px", "fx_px", "fy_px", "cx_px", "cy_px")
+            if f not in model
+        ]
         if missing:
             raise ValueError(f"camera file: 'model' lacks field(s) {', '.join(missing)}")
         fields = dict(model)

@@ -8,7 +8,7 @@ scale (1.0 saturates), so presets are comparable as a camera would record them.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 import trimesh
@@ -45,7 +45,9 @@ class Sky:
     def radiance(self, dirs_cam: np.ndarray) -> np.ndarray:
         """(N,) luminance-like radiance seen along (N, 3) unit directions (camera frame)."""
         up = dirs_cam @ UP_CAM
-        sky = self.horizon_radiance + (self.zenith_radiance - self.horizon_radiance) * np.clip(up, 0, 1)
+        sky = self.horizon_radiance + (self.zenith_radiance - self.horizon_radiance) * np.clip(
+            up, 0, 1
+        )
         base = np.where(up >= 0.0, sky, self.ground_radiance)
         front = np.clip((dirs_cam @ OPTICAL_AXIS_CAM - self.backlight_cos_min) / 0.1, 0.0, 1.0)
         return base + self.backlight_radiance * front
@@ -102,14 +104,18 @@ PRESETS: dict[str, Lighting] = {
     ),
     "sun": Lighting(
         name="sun",
-        sky=Sky(zenith_radiance=0.8, horizon_radiance=1.4, ground_radiance=0.3, color=(0.85, 0.95, 1.15)),
+        sky=Sky(
+            zenith_radiance=0.8, horizon_radiance=1.4, ground_radiance=0.3, color=(0.85, 0.95, 1.15)
+        ),
         sun=Sun(),
         exposure=1.0 / 5.5,
         description="direct sun from above-behind-left of the camera and a clear sky",
     ),
     "canopy": Lighting(
         name="canopy",
-        sky=Sky(zenith_radiance=0.4, horizon_radiance=0.7, ground_radiance=0.2, color=(0.8, 1.0, 0.85)),
+        sky=Sky(
+            zenith_radiance=0.4, horizon_radiance=0.7, ground_radiance=0.2, color=(0.8, 1.0, 0.85)
+        ),
         sun=Sun(),
         canopy=Canopy(),
         exposure=1.0 / 5.0,
@@ -118,7 +124,10 @@ PRESETS: dict[str, Lighting] = {
     "backlit": Lighting(
         name="backlit",
         sky=Sky(
-            zenith_radiance=0.5, horizon_radiance=0.5, ground_radiance=0.2, backlight_radiance=12.0,
+            zenith_radiance=0.5,
+            horizon_radiance=0.5,
+            ground_radiance=0.2,
+            backlight_radiance=12.0,
             color=(0.9, 0.95, 1.1),
         ),
         sun=Sun(to_sun_cam=(0.2, -0.5, 0.85)),

@@ -9,7 +9,7 @@ that extends one more module beyond the quiet zone. Meshes are built in the mark
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import lru_cache
+from functools import cache
 
 import cv2
 import numpy as np
@@ -18,7 +18,9 @@ import trimesh
 QUIET_ZONE_MODULES = 1
 CARRIER_MARGIN_MODULES = 1
 CARRIER_THICKNESS_MM = 1.0
-PRINT_GAP_MM = 0.01  # the carrier's front face sits this far behind the print, so they never coincide
+PRINT_GAP_MM = (
+    0.01  # the carrier's front face sits this far behind the print, so they never coincide
+)
 #: Reflectance (albedo) of the print: matte paper and toner.
 WHITE_ALBEDO = 0.8
 BLACK_ALBEDO = 0.04
@@ -39,10 +41,12 @@ def check_dictionary(name: str) -> str:
     return canonical
 
 
-@lru_cache(maxsize=None)
+@cache
 def get_dictionary(name: str) -> cv2.aruco.Dictionary:
     """The OpenCV dictionary object for a name accepted by :func:`check_dictionary`."""
-    return cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, "DICT_" + check_dictionary(name).upper()))
+    return cv2.aruco.getPredefinedDictionary(
+        getattr(cv2.aruco, "DICT_" + check_dictionary(name).upper())
+    )
 
 
 @dataclass(frozen=True)
@@ -59,7 +63,9 @@ class MarkerSpec:
             raise ValueError(f"size_mm={self.size_mm!r}: must be a positive number of millimetres")
         n_ids = get_dictionary(self.dictionary).bytesList.shape[0]
         if not 0 <= int(self.marker_id) < n_ids:
-            raise ValueError(f"marker_id={self.marker_id!r}: dictionary {self.dictionary} has ids 0..{n_ids - 1}")
+            raise ValueError(
+                f"marker_id={self.marker_id!r}: dictionary {self.dictionary} has ids 0..{n_ids - 1}"
+            )
 
     @property
     def modules(self) -> int:
@@ -86,7 +92,9 @@ def marker_albedo(spec: MarkerSpec) -> np.ndarray:
     (modules + 2 * quiet zone)^2 float32: the ArUco code with its black border inside a white
     quiet zone. Use nearest filtering: one texel per module keeps the edges hard.
     """
-    bits = get_dictionary(spec.dictionary).generateImageMarker(spec.marker_id, spec.modules, borderBits=1)
+    bits = get_dictionary(spec.dictionary).generateImageMarker(
+        spec.marker_id, spec.modules, borderBits=1
+    )
     padded = np.pad(bits, QUIET_ZONE_MODULES, constant_values=255)
     return np.where(padded > 127, WHITE_ALBEDO, BLACK_ALBEDO).astype(np.float32)
 
@@ -103,7 +111,7 @@ def print_mesh(spec: MarkerSpec) -> trimesh.Trimesh:
 
 
 def carrier_mesh(spec: MarkerSpec) -> trimesh.Trimesh:
-    """The white carrier plate behind the print: a thin box whose front face is just behind z = 0."""
+    """The white carrier plate behind the print: a thin box, front face just behind z = 0."""
     h = spec.carrier_half_mm
     box = trimesh.creation.box(extents=(2 * h, 2 * h, CARRIER_THICKNESS_MM))
     box.apply_translation((0.0, 0.0, -0.5 * CARRIER_THICKNESS_MM - PRINT_GAP_MM))

@@ -19,7 +19,7 @@ MAX_PHI_DEG = 89.0
 
 
 def facing_rotation(position_cam: np.ndarray) -> np.ndarray:
-    """R_cam_marker of a marker at ``position_cam`` that faces the camera, top towards the zenith."""
+    """R_cam_marker of a marker at ``position_cam`` facing the camera, top towards the zenith."""
     z = -np.asarray(position_cam, dtype=float)
     z /= np.linalg.norm(z)
     y = UP_CAM - (UP_CAM @ z) * z

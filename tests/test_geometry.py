@@ -25,11 +25,13 @@ def random_T(rng):
     q = rng.normal(size=4)
     q /= np.linalg.norm(q)
     w, x, y, z = q  # quaternion -> rotation, an independent route to a rotation matrix
-    R = np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-    ])
+    R = np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
     return make_T(R, rng.normal(size=3) * 100)
 
 
@@ -87,16 +89,23 @@ def test_marker_print_and_carrier():
     assert carrier_mesh(spec).vertices[:, 2].max() < 0  # carrier behind the print
 
 
-@pytest.mark.parametrize("kwargs, field", [
-    (dict(size_mm=0), "size_mm"), (dict(size_mm=-2), "size_mm"),
-    (dict(dictionary="4x4_7"), "dictionary"), (dict(marker_id=50), "marker_id"),
-])
+@pytest.mark.parametrize(
+    "kwargs, field",
+    [
+        (dict(size_mm=0), "size_mm"),
+        (dict(size_mm=-2), "size_mm"),
+        (dict(dictionary="4x4_7"), "dictionary"),
+        (dict(marker_id=50), "marker_id"),
+    ],
+)
 def test_bad_marker_spec(kwargs, field):
     with pytest.raises(ValueError, match=field):
         MarkerSpec(**kwargs)
 
 
 def test_scenes_do_not_import_mitsuba():
-    code = ("import sys, scenes.camera, scenes.marker, scenes.lighting, scenes.study; "
-            "assert 'mitsuba' not in sys.modules and 'drjit' not in sys.modules")
+    code = (
+        "import sys, scenes.camera, scenes.marker, scenes.lighting, scenes.study; "
+        "assert 'mitsuba' not in sys.modules and 'drjit' not in sys.modules"
+    )
     subprocess.run([sys.executable, "-c", code], check=True)

@@ -35,7 +35,9 @@ def render(variant):
 def test_sky_seen_past_the_marker_matches_the_sky_model(render):
     from renderers.window import Window
 
-    sky = Sky(zenith_radiance=0.5, horizon_radiance=2.0, ground_radiance=0.2, backlight_radiance=3.0)
+    sky = Sky(
+        zenith_radiance=0.5, horizon_radiance=2.0, ground_radiance=0.2, backlight_radiance=3.0
+    )
     lighting = Lighting("test", sky=sky)
     cam = default_camera()
     far_away = make_T(np.eye(3), [0.0, 0.0, -1e5])  # marker behind the camera: only sky is seen
@@ -48,7 +50,11 @@ def test_sky_seen_past_the_marker_matches_the_sky_model(render):
             got = render(lighting, far_away, spp=1, window=window, sky=method).radiance()[0, cols]
             # The envmap is 64 x 128 texels, bilinear: a few percent near the gradients.
             assert np.allclose(got[valid].mean(-1), expected[valid], rtol=0.06, atol=0.02), (
-                method, r, got, expected)
+                method,
+                r,
+                got,
+                expected,
+            )
 
 
 @pytest.mark.parametrize("name", ["lab", "sun", "backlit"])
@@ -84,8 +90,15 @@ def test_marker_detected_facing_the_camera_in_every_lighting(variant, name):
 
     config = StudyConfig(images=8, lightings=(name,))
     images, window, _ = cell_images(config, Cell(name, 13.2, 0.0, 0.0))
-    ids = [[d.marker_id for d in detect_markers(im, config.detector, (window.x0, window.y0))]
-           for im in images]
+    ids = [
+        [
+            d.marker_id
+            for d in detect_markers(
+                im, config.detector, (window.x0, window.y0), camera=config.camera
+            )
+        ]
+        for im in images
+    ]
     assert all(found in ([], [0]) for found in ids)  # never a wrong id
     if name == "canopy":
         # A shadow edge across the code bits defeats the detector (a known failure mode that
@@ -142,11 +155,14 @@ scene.set_pose(study_pose(0.0, 0.0, 200.0), 13.2)
 out = FisheyeRenderer(default_camera(), scene, spp=1).render(Window(1270, 955, 12, 12), seed=0)
 print(" ".join(map(str, out.radiance().ravel().tolist())))
 """
-    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    result = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True
+    )
     scalar = np.array(result.stdout.split(), dtype=float).reshape(12, 12, 3)
     from renderers.window import Window
 
-    fast = render(get_lighting("sun"), study_pose(0.0, 0.0, 200.0), spp=1,
-                  window=Window(1270, 955, 12, 12)).radiance()
+    fast = render(
+        get_lighting("sun"), study_pose(0.0, 0.0, 200.0), spp=1, window=Window(1270, 955, 12, 12)
+    ).radiance()
     assert scalar.std() > 0.1  # the window holds print edges, not a flat field
     assert np.allclose(scalar, fast, rtol=1e-3, atol=1e-4)

@@ -20,14 +20,35 @@ def run(tmp_path, name="run", **kwargs):
 
 def test_outputs(variant, tmp_path):
     config, out, manifest = run(tmp_path)
-    for name in ("images.parquet", "summary.csv", "max_phi.csv", "max_phi.png", "heatmap.png",
-                 "pose_error.png", "manifest.json", "config.json"):
+    for name in (
+        "images.parquet",
+        "summary.csv",
+        "max_phi.csv",
+        "max_phi.png",
+        "heatmap.png",
+        "pose_error.png",
+        "manifest.json",
+        "config.json",
+    ):
         assert (out / name).stat().st_size > 0, name
     images = pd.read_parquet(out / "images.parquet")
     assert len(images) == 4 * 6
-    for column in ("size_mm", "alpha_deg", "phi_deg", "lighting", "image_index", "detected",
-                   "id_ok", "gt_x0_px", "gt_y3_px", "det_x0_px", "corner_err_px",
-                   "rot_err_deg", "trans_err_mm", "ambiguity_ratio"):
+    for column in (
+        "size_mm",
+        "alpha_deg",
+        "phi_deg",
+        "lighting",
+        "image_index",
+        "detected",
+        "id_ok",
+        "gt_x0_px",
+        "gt_y3_px",
+        "det_x0_px",
+        "corner_err_px",
+        "rot_err_deg",
+        "trans_err_mm",
+        "ambiguity_ratio",
+    ):
         assert column in images.columns, column
     frontal = images[(images.alpha_deg == 0) & (images.phi_deg == 0)]
     assert frontal.id_ok.all() and (frontal.corner_err_px < 1.0).all()

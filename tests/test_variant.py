@@ -2,7 +2,13 @@
 
 import pytest
 
-from renderers.variant import FAST_PATH_HINT, MIN_LLVM_MAJOR, find_libllvm, llvm_major, select_variant
+from renderers.variant import (
+    FAST_PATH_HINT,
+    MIN_LLVM_MAJOR,
+    find_libllvm,
+    llvm_major,
+    select_variant,
+)
 
 
 @pytest.mark.parametrize(
