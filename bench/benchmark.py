@@ -9,7 +9,6 @@ so the reader sees what the crop saves and that it changes no answer.
 
 from __future__ import annotations
 
-import dataclasses
 import tempfile
 import time
 from pathlib import Path
@@ -17,11 +16,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from bench.detectability import LUMINANCE_RGB, StudyConfig, _renderer, init_worker
+from bench.detectability import StudyConfig, camera_images, init_worker, renderer_for
 from bench.study import run_study
 from pipeline.detect import detect_markers
-from renderers.response import apply_response
-from scenes.lighting import get_lighting
 from scenes.study import study_pose
 
 FULL_FRAME_IMAGES = 4  # images drawn per full-frame cell (each is a 5-megapixel frame)
@@ -31,19 +28,14 @@ def _full_frame_cell(config: StudyConfig, cell, n_images: int) -> dict:
     """Render one cell as a full frame, draw ``n_images`` images, detect on full frames."""
     from renderers.window import Window
 
-    lighting = get_lighting(cell.lighting)
-    renderer, _ = _renderer(config, cell.lighting)
+    renderer, _ = renderer_for(config, cell.lighting)
     T = study_pose(cell.alpha_deg, cell.phi_deg, config.distance_mm)
     renderer.scene.set_pose(T, cell.size_mm)
     t0 = time.perf_counter()
     rendered = renderer.render(Window.full(config.camera), seed=1)
     t1 = time.perf_counter()
-    response = dataclasses.replace(
-        config.response, exposure=config.response.exposure * lighting.exposure
-    )
-    radiance = (rendered.radiance() @ LUMINANCE_RGB).astype(np.float32)
-    images = apply_response(
-        radiance, response, np.random.default_rng(0), n_images=n_images, valid=rendered.inside
+    images = camera_images(
+        config, cell.lighting, rendered, rendered.radiance(), n_images, np.random.default_rng(0)
     )
     t2 = time.perf_counter()
     found = [

@@ -148,18 +148,19 @@ class Cell:
 _STATE: dict = {}
 
 
-def init_worker(variant: str | None, threads: int | None = None) -> None:
-    """Set the Mitsuba variant in this process (called once per worker)."""
+def init_worker(variant: str | None, threads: int | None = None) -> str:
+    """Set the Mitsuba variant in this process (called once per worker); return it."""
     from renderers.variant import select_variant
 
-    _STATE["variant"] = select_variant(variant)
+    chosen = select_variant(variant)
     if threads:
         import drjit as dr
 
         dr.set_thread_count(threads)
+    return chosen
 
 
-def _renderer(config: StudyConfig, lighting_name: str):
+def renderer_for(config: StudyConfig, lighting_name: str):
     from renderers.fisheye import FisheyeRenderer
     from renderers.mitsuba_scene import CanopyScene, MarkerScene
 
@@ -182,7 +183,7 @@ def cell_images(config: StudyConfig, cell: Cell) -> tuple[np.ndarray, object, di
     spec = MarkerSpec(config.dictionary, config.marker_id, cell.size_mm)
     extent = transform_points(T_cam_marker, carrier_mesh(spec).vertices)
     window = Window.around(camera.project(extent), camera)
-    renderer, canopy = _renderer(config, cell.lighting)
+    renderer, canopy = renderer_for(config, cell.lighting)
     renderer.scene.set_pose(T_cam_marker, cell.size_mm)
     render_seed, noise_seed = cell.seed_sequence(config.seed).generate_state(2)
     t0 = time.perf_counter()
@@ -195,20 +196,36 @@ def cell_images(config: StudyConfig, cell: Cell) -> tuple[np.ndarray, object, di
     else:
         radiance = rendered.radiance()
     render_s = time.perf_counter() - t0
+    images = camera_images(config, cell.lighting, rendered, radiance, config.images, rng)
+    return images, window, {"T_cam_marker": T_cam_marker, "render_s": render_s}
+
+
+def camera_images(
+    config: StudyConfig,
+    lighting_name: str,
+    rendered,
+    radiance: np.ndarray,
+    n_images: int,
+    rng: np.random.Generator,
+) -> np.ndarray:
+    """The 8-bit grey images the camera records of a clean render: (N, H, W) uint8.
+
+    ``radiance`` is (H, W, 3), drawn ``n_images`` times, or (N, H, W, 3), one image each; a
+    fixed exposure is scaled by the lighting preset's own.
+    """
     response = config.response
     if response.exposure != "auto":
-        response = dataclasses.replace(response, exposure=response.exposure * lighting.exposure)
-    theta = camera.theta_of_pixel(window.pixel_centres())
-    images = apply_response(
+        exposure = response.exposure * get_lighting(lighting_name).exposure
+        response = dataclasses.replace(response, exposure=exposure)
+    return apply_response(
         (radiance @ LUMINANCE_RGB).astype(np.float32),
         response,
         rng,
-        n_images=1 if radiance.ndim == 4 else config.images,
-        theta_rad=theta,
-        theta_max_rad=camera.theta_max_rad,
+        n_images=1 if radiance.ndim == 4 else n_images,
+        theta_rad=config.camera.theta_of_pixel(rendered.window.pixel_centres()),
+        theta_max_rad=config.camera.theta_max_rad,
         valid=rendered.inside,
     )
-    return images, window, {"T_cam_marker": T_cam_marker, "render_s": render_s}
 
 
 def run_cell(config: StudyConfig, cell: Cell, out_dir: Path, save_images: bool = False) -> dict:

@@ -96,10 +96,7 @@ def run_study(
     cells = config.cells()
     todo = [c for c in cells if not _cell_done(out_dir, c, config, save_images)]
     threads = 1 if workers > 1 else None
-    init_worker(variant)  # the manifest records this process's variant; workers choose the same
-    from renderers.variant import select_variant
-
-    chosen = select_variant(variant)
+    chosen = init_worker(variant)  # recorded in the manifest; workers are given the same
     stage = {"render_s": 0.0, "response_s": 0.0, "detect_s": 0.0}
     t_cells = time.perf_counter()
     tasks = [_CellTask(config, c, out_dir, save_images) for c in todo]
