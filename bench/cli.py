@@ -10,6 +10,9 @@ import os
 import sys
 from pathlib import Path
 
+from bench.cli_dataset import OPTION_OF_FIELD as DATASET_OPTION_OF_FIELD
+from bench.cli_dataset import add_dataset_options, cmd_bench_dataset, cmd_dataset
+from bench.dataset import DatasetConfigError
 from bench.detectability import (
     DEFAULT_ALPHAS_DEG,
     DEFAULT_PHIS_DEG,
@@ -201,6 +204,22 @@ def _parser() -> argparse.ArgumentParser:
         help="cells rendered as full 2592x1944 frames for the ratio (default 2)",
     )
     bdet.set_defaults(func=_cmd_bench_detectability)
+    data = sub.add_parser("dataset", help="generate labeled videos of the array in vegetation")
+    add_dataset_options(data)
+    data.add_argument("--out", help="dataset folder (default data/default, data/quick)")
+    data.add_argument(
+        "--workers",
+        type=int,
+        default=1,
+        help="worker processes, one sample each (default 1: one sample uses every core)",
+    )
+    data.set_defaults(func=cmd_dataset)
+    bdata = bench_sub.add_parser(
+        "dataset", help="frames/s of band and full-frame rendering, and their detections"
+    )
+    add_dataset_options(bdata)
+    bdata.add_argument("--frames", type=int, default=30, help="frames timed per mode (default 30)")
+    bdata.set_defaults(func=cmd_bench_dataset)
     return parser
 
 
@@ -211,6 +230,10 @@ def main(argv: list[str] | None = None) -> int:
         return args.func(args)
     except StudyConfigError as exc:
         option = OPTION_OF_FIELD.get(exc.field, exc.field)
+        print(f"whiskerbench {args.command}: error: {option}: {exc.detail}", file=sys.stderr)
+        return 2
+    except DatasetConfigError as exc:
+        option = DATASET_OPTION_OF_FIELD.get(exc.field, exc.field)
         print(f"whiskerbench {args.command}: error: {option}: {exc.detail}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

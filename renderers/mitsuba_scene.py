@@ -66,9 +66,13 @@ def mesh_to_mitsuba(name: str, mesh: trimesh.Trimesh, bsdf: dict) -> mi.Mesh:
     return out
 
 
-def _diffuse(value: float | np.ndarray) -> dict:
+def diffuse_bsdf(value: float | tuple[float, float, float] | np.ndarray) -> dict:
+    """A Lambertian BSDF: grey albedo, an RGB tuple, or a (rows, cols) albedo texture (row 0 top,
+    sampled nearest so printed module edges stay hard)."""
     if np.isscalar(value):
         return {"type": "diffuse", "reflectance": {"type": "rgb", "value": [float(value)] * 3}}
+    if isinstance(value, tuple):
+        return {"type": "diffuse", "reflectance": {"type": "rgb", "value": [float(v) for v in value]}}
     # The bitmap's first row sits at v = 0, the bottom of the print: flip so row 0 is the top.
     texture = np.ascontiguousarray(np.flipud(value))[..., None].repeat(3, axis=-1)
     return {
@@ -95,8 +99,8 @@ class MarkerScene:
             {
                 "type": "scene",
                 "sky": {"type": "envmap", "bitmap": mi.Bitmap(sky_bitmap(lighting.sky))},
-                "print": mesh_to_mitsuba("print", self._print, _diffuse(marker_albedo(marker))),
-                "carrier": mesh_to_mitsuba("carrier", self._carrier, _diffuse(0.8)),
+                "print": mesh_to_mitsuba("print", self._print, diffuse_bsdf(marker_albedo(marker))),
+                "carrier": mesh_to_mitsuba("carrier", self._carrier, diffuse_bsdf(0.8)),
             },
             optimize=False,
         )
@@ -122,6 +126,6 @@ class CanopyScene:
             raise ValueError(f"lighting {lighting.name!r} has no sun or no canopy")
         mesh = canopy_mesh(lighting.sun, lighting.canopy)
         self.scene = mi.load_dict(
-            {"type": "scene", "leaves": mesh_to_mitsuba("leaves", mesh, _diffuse(0.3))},
+            {"type": "scene", "leaves": mesh_to_mitsuba("leaves", mesh, diffuse_bsdf(0.3))},
             optimize=False,
         )

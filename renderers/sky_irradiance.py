@@ -51,7 +51,8 @@ def irradiance_direct(sky: Sky, normals: np.ndarray) -> np.ndarray:
 
 
 @lru_cache(maxsize=16)
-def _table(sky: Sky) -> np.ndarray:
+def irradiance_table(sky: Sky) -> np.ndarray:
+    """E on the (polar from +z, azimuth) grid of normals: rows over [0, pi], cols over [0, 2 pi)."""
     normals, _, _ = _sphere_grid(*_TABLE)
     return irradiance_direct(sky, normals.reshape(-1, 3)).reshape(_TABLE)
 
@@ -67,7 +68,7 @@ def irradiance(sky: Sky, normals: np.ndarray) -> np.ndarray:
     r0 = np.minimum(np.floor(r).astype(int), rows - 2)
     c0 = np.floor(c).astype(int)
     fr, fc = r - r0, c - c0
-    table = _table(sky)
+    table = irradiance_table(sky)
     c0w, c1w = np.mod(c0, cols), np.mod(c0 + 1, cols)  # azimuth wraps around
     top = table[r0, c0w] * (1 - fc) + table[r0, c1w] * fc
     bottom = table[r0 + 1, c0w] * (1 - fc) + table[r0 + 1, c1w] * fc

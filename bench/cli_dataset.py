@@ -1,0 +1,171 @@
+"""Options of ``whiskerbench dataset`` and ``whiskerbench bench dataset``, and their commands."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from bench.dataset import (
+    DEFAULT_BRANCHES,
+    DEFAULT_DISTANCES,
+    DEFAULT_FOLIAGE,
+    DEFAULT_PROTOCOLS,
+    DatasetConfig,
+    branches_name,
+)
+from renderers.frames import FrameSampling
+
+#: A few short samples: one foliage, one distance, no / one / two branches, one outdoor pass.
+QUICK = {
+    "foliage": ("soft",),
+    "distances": ("intermediate",),
+    "branches": ((), (0.0,), (0.0, 100.0)),
+    "protocols": ("outdoor",),
+    "passes": 1,
+}
+OPTION_OF_FIELD = {
+    "foliage": "--foliage",
+    "distances": "--distance",
+    "branches": "--branches",
+    "protocols": "--protocol",
+    "lightings": "--lighting",
+    "frames_step": "--frames-step",
+    "speed_mm_s": "--speed",
+    "amplitude_mm": "--amplitude",
+    "passes": "--passes",
+    "fps": "--fps",
+    "exposure_ms": "--exposure-ms",
+    "marker_spp": "--spp",
+    "subframes": "--subframes",
+    "workers": "--workers",
+    "out": "--out",
+}
+
+
+def _names(text: str) -> tuple[str, ...]:
+    return tuple(v.strip() for v in text.split(",") if v.strip())
+
+
+def _branch_sets(text: str) -> tuple[tuple[float, ...], ...]:
+    """'none,0,50,0+100' -> ((), (0,), (50,), (0, 100))."""
+    out = []
+    for item in _names(text):
+        if item == "none":
+            out.append(())
+            continue
+        try:
+            out.append(tuple(float(v) for v in item.split("+")))
+        except ValueError:
+            raise argparse.ArgumentTypeError(
+                f"--branches: {item!r} is not 'none' or mm positions joined by '+'"
+            ) from None
+    if not out:
+        raise argparse.ArgumentTypeError("--branches: needs at least one configuration")
+    return tuple(out)
+
+
+def add_dataset_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--foliage",
+        type=_names,
+        help=f"foliage kinds (default {','.join(DEFAULT_FOLIAGE)}; also none)",
+    )
+    p.add_argument(
+        "--distance",
+        type=_names,
+        help=f"sampling distances (default {','.join(DEFAULT_DISTANCES)})",
+    )
+    p.add_argument(
+        "--branches",
+        type=_branch_sets,
+        help="branch configurations, mm along the array, '+' for pairs (default "
+        f"{','.join(branches_name(b) for b in DEFAULT_BRANCHES)})",
+    )
+    p.add_argument(
+        "--protocol", type=_names, help=f"protocols (default {','.join(DEFAULT_PROTOCOLS)})"
+    )
+    p.add_argument(
+        "--lighting", type=_names, default=("sun",), help="lighting presets (default sun)"
+    )
+    p.add_argument(
+        "--frames-step",
+        type=int,
+        default=1,
+        help="keep every k-th frame (the slow indoor protocol has ~1000 frames per sample)",
+    )
+    p.add_argument("--speed", type=float, help="whisking speed mm/s (default: the protocol's)")
+    p.add_argument("--amplitude", type=float, help="whisking amplitude mm (default 50)")
+    p.add_argument("--passes", type=int, help="translations (default: the protocol's)")
+    p.add_argument("--fps", type=float, help="frame rate (default 15)")
+    p.add_argument(
+        "--exposure-ms", type=float, default=8.0, help="exposure time: motion blur (default 8)"
+    )
+    p.add_argument(
+        "--spp", type=int, default=4, help="samples per pixel where markers can be (default 4)"
+    )
+    p.add_argument("--subframes", type=int, default=4, help="time samples per exposure (default 4)")
+    p.add_argument(
+        "--full-frame", action="store_true", help="render whole frames, not just the band"
+    )
+    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument(
+        "--variant",
+        choices=("cuda_ad_rgb", "llvm_ad_rgb"),
+        help="Mitsuba variant (default: the fastest that works here)",
+    )
+    p.add_argument("--quick", action="store_true", help="three short outdoor samples")
+
+
+def dataset_config(args: argparse.Namespace) -> DatasetConfig:
+    """The DatasetConfig the options describe (--quick fills what was not given)."""
+    quick = QUICK if args.quick else {}
+    try:
+        sampling = FrameSampling(
+            marker_spp=args.spp, subframes=args.subframes, full_frame=args.full_frame
+        )
+    except ValueError as exc:
+        from bench.dataset import DatasetConfigError
+
+        name = str(exc).split("=", 1)[0]
+        raise DatasetConfigError(name, str(exc).split(": ", 1)[1]) from None
+    return DatasetConfig(
+        foliage=args.foliage or quick.get("foliage", DEFAULT_FOLIAGE),
+        distances=args.distance or quick.get("distances", DEFAULT_DISTANCES),
+        branches=args.branches or quick.get("branches", DEFAULT_BRANCHES),
+        protocols=args.protocol or quick.get("protocols", DEFAULT_PROTOCOLS),
+        lightings=args.lighting,
+        frames_step=args.frames_step,
+        seed=args.seed,
+        speed_mm_s=args.speed,
+        amplitude_mm=args.amplitude,
+        passes=args.passes if args.passes is not None else quick.get("passes"),
+        fps=args.fps,
+        exposure_ms=args.exposure_ms,
+        sampling=sampling,
+    )
+
+
+def cmd_dataset(args: argparse.Namespace) -> int:
+    from bench.dataset import DatasetConfigError
+    from bench.generate import run_dataset
+
+    config = dataset_config(args)
+    out = Path(args.out or ("data/quick" if args.quick else "data/default"))
+    if args.workers < 1:
+        raise DatasetConfigError("workers", f"{args.workers}: must be >= 1")
+    manifest = run_dataset(config, out, variant=args.variant, workers=args.workers)
+    rate = manifest["frames_per_s"]
+    print(
+        f"wrote {out}/ ({len(manifest['samples'])} samples, {manifest['skipped']} already done; "
+        f"{manifest['frames_rendered']} frames in {manifest['wall_s']:.1f} s"
+        + (f", {rate:.1f} frames/s" if rate else "")
+        + f", variant {manifest['variant']})"
+    )
+    return 0
+
+
+def cmd_bench_dataset(args: argparse.Namespace) -> int:
+    from bench.benchmark_dataset import bench_dataset
+
+    bench_dataset(dataset_config(args), frames=args.frames, variant=args.variant)
+    return 0

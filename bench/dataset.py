@@ -1,0 +1,421 @@
+"""Benchmark datasets: labeled videos of the whisker array sampling vegetation (SPEC 2, 5).
+
+A dataset is a grid of samples; each sample is a pure function of the dataset config and its
+own seed and writes ``<out>/<sample_id>/`` atomically, file by file, with ``sample.json`` last:
+it lists the SHA-256 of the other files, so a rerun skips a sample whose files verify and
+redoes one that a crash cut short.
+
+Per sample: vegetation (:mod:`scenes.vegetation`) and a protocol (:mod:`scenes.motion`) give the
+array's path; the mechanics (:mod:`scenes.mechanics`) give every whisker's deflection at every
+time sample; the frame renderer (:mod:`renderers.frames`) and the camera response make the
+frames; :mod:`bench.labels` makes the exact labels; :mod:`bench.video` writes the videos.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import math
+import time
+import zlib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from bench.atomic import atomic_path, write_json
+from bench.labels import corners_of_frame, label_table
+from renderers.frames import FrameSampling
+from renderers.response import CameraResponse, apply_response
+from scenes.array import ArraySpec
+from scenes.camera import FisheyeCamera, default_camera
+from scenes.lighting import get_lighting, lighting_names
+from scenes.motion import MotionSpec, MotionSpecError, get_protocol
+from scenes.vegetation import (
+    FOLIAGE_KINDS,
+    SAMPLING_PENETRATION_MM,
+    VegetationSpec,
+    branch_reach_error,
+    gap_of_branch,
+)
+
+DEFAULT_FOLIAGE = ("soft", "stiff", "sparse", "dense")
+DEFAULT_DISTANCES = ("far", "intermediate", "close")
+DEFAULT_BRANCHES: tuple[tuple[float, ...], ...] = (
+    (),
+    (0.0,),
+    (50.0,),
+    (100.0,),
+    (150.0,),
+    (0.0, 50.0),
+    (0.0, 100.0),
+)
+DEFAULT_PROTOCOLS = ("indoor", "outdoor")
+SAMPLE_FILES = ("video.mp4", "labels.parquet", "camera.json", "preview.mp4")
+#: The lead-in holds the array this far (mm) short of the foliage front: no contact.
+APPROACH_CLEARANCE_MM = 15.0
+
+
+class DatasetConfigError(ValueError):
+    """An invalid dataset option; ``field`` names the config field."""
+
+    def __init__(self, field_name: str, message: str) -> None:
+        super().__init__(f"{field_name}: {message}")
+        self.field = field_name
+        self.detail = message
+
+
+def branches_name(branches_mm: tuple[float, ...]) -> str:
+    """'none', '0', '0+50': how a branch configuration appears in ids and on the command line."""
+    return "+".join(f"{b:g}" for b in branches_mm) if branches_mm else "none"
+
+
+@dataclass(frozen=True)
+class SampleSpec:
+    """One cell of the grid."""
+
+    foliage: str
+    distance: str
+    branches_mm: tuple[float, ...]
+    protocol: str
+    lighting: str
+
+    @property
+    def sample_id(self) -> str:
+        parts = (self.foliage, self.distance, branches_name(self.branches_mm), self.protocol)
+        return "-".join((*parts, self.lighting))
+
+    def seed_sequence(self, seed: int) -> np.random.SeedSequence:
+        return np.random.SeedSequence(seed, spawn_key=(zlib.crc32(self.sample_id.encode()),))
+
+
+@dataclass(frozen=True)
+class DatasetConfig:
+    """The grid and every rendering choice; validated on construction."""
+
+    foliage: tuple[str, ...] = DEFAULT_FOLIAGE
+    distances: tuple[str, ...] = DEFAULT_DISTANCES
+    branches: tuple[tuple[float, ...], ...] = DEFAULT_BRANCHES
+    protocols: tuple[str, ...] = DEFAULT_PROTOCOLS
+    lightings: tuple[str, ...] = ("sun",)
+    frames_step: int = 1
+    seed: int = 0
+    #: Protocol overrides (None keeps the protocol's own value).
+    speed_mm_s: float | None = None
+    amplitude_mm: float | None = None
+    passes: int | None = None
+    fps: float | None = None
+    exposure_ms: float = 8.0
+    sampling: FrameSampling = field(default_factory=FrameSampling)
+    response: CameraResponse = field(default_factory=CameraResponse)
+    array: ArraySpec = field(default_factory=ArraySpec)
+    camera: FisheyeCamera = field(default_factory=default_camera)
+
+    def __post_init__(self) -> None:
+        for name, allowed in (
+            ("foliage", FOLIAGE_KINDS),
+            ("distances", tuple(SAMPLING_PENETRATION_MM)),
+            ("protocols", ("indoor", "outdoor")),
+            ("lightings", tuple(lighting_names())),
+        ):
+            values = getattr(self, name)
+            if not values:
+                raise DatasetConfigError(name, "needs at least one value")
+            bad = [v for v in values if v not in allowed]
+            if bad:
+                raise DatasetConfigError(
+                    name, f"unknown {', '.join(map(repr, bad))}; choose from {', '.join(allowed)}"
+                )
+        if not self.branches:
+            raise DatasetConfigError("branches", "needs at least one configuration")
+        if not (isinstance(self.frames_step, int) and self.frames_step >= 1):
+            raise DatasetConfigError(
+                "frames_step", f"must be an integer >= 1, got {self.frames_step}"
+            )
+        for protocol in self.protocols:
+            motion = self.motion(protocol)  # validates the overrides
+            if not 0 < self.exposure_ms <= 1000.0 / motion.fps:
+                raise DatasetConfigError(
+                    "exposure_ms",
+                    f"must be in (0, {1000.0 / motion.fps:g}] (one frame at {motion.fps:g} fps), "
+                    f"got {self.exposure_ms}",
+                )
+            for branches in self.branches:
+                for distance in self.distances:
+                    if not all(math.isfinite(b) for b in branches):
+                        raise DatasetConfigError("branches", f"{branches} is not finite")
+                    error = branch_reach_error(branches, distance, self.array, motion.amplitude_mm)
+                    if error:
+                        raise DatasetConfigError("branches", error)
+
+    def motion(self, protocol: str, distance: str = "close") -> MotionSpec:
+        """The protocol with this config's overrides, withdrawn just clear of the foliage."""
+        overrides = {
+            "approach_mm": SAMPLING_PENETRATION_MM[distance] + APPROACH_CLEARANCE_MM,
+            "speed_mm_s": self.speed_mm_s,
+            "amplitude_mm": self.amplitude_mm,
+            "passes": self.passes,
+            "fps": self.fps,
+        }
+        try:
+            return dataclasses.replace(
+                get_protocol(protocol), **{k: v for k, v in overrides.items() if v is not None}
+            )
+        except MotionSpecError as exc:
+            raise DatasetConfigError(exc.field, str(exc).split(": ", 1)[1]) from None
+
+    def samples(self) -> list[SampleSpec]:
+        return [
+            SampleSpec(f, d, tuple(float(x) for x in b), p, light)
+            for light in self.lightings
+            for p in self.protocols
+            for f in self.foliage
+            for d in self.distances
+            for b in self.branches
+        ]
+
+    def to_json(self) -> dict:
+        out = dataclasses.asdict(self)
+        out["camera"] = self.camera.to_dict()
+        return out
+
+    def settings_hash(self) -> str:
+        """Hash of everything but the grid selection: samples made with equal settings match."""
+        grid = ("foliage", "distances", "branches", "protocols", "lightings")
+        settings = {k: v for k, v in self.to_json().items() if k not in grid}
+        return hashlib.sha256(
+            json.dumps(settings, sort_keys=True, default=str).encode()
+        ).hexdigest()
+
+
+# -- one sample ------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class SampleTiming:
+    frames: int
+    simulate_s: float
+    render_s: float
+    response_s: float
+    encode_s: float
+    total_s: float
+
+
+def sample_times(motion: MotionSpec, exposure_s: float, subframes: int, step: int):
+    """(frame times (F,), source frame indices (F,), time samples (F, subframes) s).
+
+    A frame's timestamp is the middle of its exposure; its time samples are stratified over it.
+    """
+    source = np.arange(0, len(motion.frame_times()), step)
+    times = motion.frame_times()[source]
+    offsets = ((np.arange(subframes) + 0.5) / subframes - 0.5) * exposure_s
+    return times, source, times[:, None] + offsets[None, :]
+
+
+@dataclass
+class SimulatedSample:
+    """A sample's path and mechanics: everything but the pixels."""
+
+    vegetation: object  # scenes.vegetation.Vegetation
+    motion: MotionSpec
+    times_s: np.ndarray  # (F,) frame timestamps (middle of the exposure)
+    source_frames: np.ndarray  # (F,) indices at the protocol's full frame rate
+    sub_times_s: np.ndarray  # (F, K) time samples within each exposure
+    angles_rad: np.ndarray  # (F, K + 1, n, 2): at the K time samples, then at the timestamp
+    labels: object  # pandas.DataFrame of bench.labels
+
+
+def simulate_sample(config: DatasetConfig, sample: SampleSpec) -> SimulatedSample:
+    """Vegetation, path and every whisker's deflection at every time sample, in time order."""
+    from scenes.mechanics import simulate
+    from scenes.vegetation import build_vegetation
+
+    _, veg_seed, _ = sample.seed_sequence(config.seed).generate_state(3)
+    motion = config.motion(sample.protocol, sample.distance)
+    k = config.sampling.subframes
+    vegetation = build_vegetation(
+        VegetationSpec(sample.foliage, sample.distance, sample.branches_mm, int(veg_seed) % 2**31),
+        config.array,
+    )
+    times, source, sub_times = sample_times(
+        motion, config.exposure_ms / 1000, k, config.frames_step
+    )
+    all_times = np.concatenate([sub_times, times[:, None]], axis=1).ravel()
+    order = np.argsort(all_times, kind="stable")
+    result = simulate(
+        config.array, motion.offsets_at(all_times[order]), vegetation.branches, vegetation.contacts
+    )
+    unsort = np.empty_like(order)
+    unsort[order] = np.arange(len(order))
+    angles = result.angles_rad[unsort].reshape(len(times), k + 1, -1, 2)
+    contact = result.contact[unsort].reshape(len(times), k + 1, -1)[:, k]
+    branch_contact = result.branch_contact[unsort].reshape(len(times), k + 1, -1)[:, k]
+    labels = label_table(
+        config.camera, config.array, angles[:, k], contact, branch_contact, times, source
+    )
+    return SimulatedSample(vegetation, motion, times, source, sub_times, angles, labels)
+
+
+class SampleFrames:
+    """Renders and records a simulated sample's frames, full-size uint8, one at a time."""
+
+    def __init__(
+        self,
+        config: DatasetConfig,
+        sample: SampleSpec,
+        sim: SimulatedSample,
+        sampling: FrameSampling | None = None,
+    ) -> None:
+        from renderers.frames import FrameRenderer
+
+        render_seed, _, noise_seed = sample.seed_sequence(config.seed).generate_state(3)
+        self.config, self.sim = config, sim
+        lighting = get_lighting(sample.lighting)
+        self.renderer = FrameRenderer(
+            config.camera,
+            config.array,
+            [(p.name, p.mesh, p.albedo_rgb) for p in sim.vegetation.parts],
+            lighting,
+            sampling or config.sampling,
+            int(render_seed) % 2**31,
+        )
+        response = config.response
+        if response.exposure != "auto":
+            response = dataclasses.replace(response, exposure=response.exposure * lighting.exposure)
+        self.response = response
+        self.rng_band, self.rng_rest = (
+            np.random.default_rng(s) for s in np.random.SeedSequence(noise_seed).spawn(2)
+        )
+        self.render_s = self.response_s = 0.0
+
+    def luminance(self, f: int) -> np.ndarray:
+        """Clean linear luminance of frame ``f`` over the renderer's region."""
+        k = self.renderer.sampling.subframes
+        offsets = self.sim.motion.offsets_at(self.sim.sub_times_s[f])
+        return self.renderer.render(self.sim.angles_rad[f, :k], offsets)
+
+    def _record(self, luminance: np.ndarray, window, inside: np.ndarray, rng) -> np.ndarray:
+        theta = None
+        if self.response.needs_theta:
+            theta = self.config.camera.theta_of_pixel(window.pixel_centres())
+        return apply_response(
+            luminance, self.response, rng, 1, theta, self.config.camera.theta_max_rad, inside
+        )[0]
+
+    def frame(self, f: int) -> np.ndarray:
+        """The camera's 8-bit grey frame ``f`` (H, W): black outside the rendered region.
+
+        The band's noise comes from its own stream, so a band frame and a full frame of the same
+        sample hold identical pixels wherever their clean renders agree.
+        """
+        t0 = time.perf_counter()
+        luminance = self.luminance(f)
+        t1 = time.perf_counter()
+        camera, region, band = self.config.camera, self.renderer.region, self.renderer.band
+        image = np.zeros((camera.height_px, camera.width_px), np.uint8)
+        inside = self.renderer.inside
+        if region != band:
+            image[:] = self._record(luminance, region, inside, self.rng_rest)
+        rows = slice(band.y0 - region.y0, band.y0 - region.y0 + band.height)
+        image[band.y0 : band.y0 + band.height] = self._record(
+            luminance[rows], band, inside[rows], self.rng_band
+        )
+        self.render_s += t1 - t0
+        self.response_s += time.perf_counter() - t1
+        return image
+
+
+def run_sample(config: DatasetConfig, sample: SampleSpec, out_dir: Path) -> dict:
+    """Simulate, render and label one sample into ``out_dir / sample_id``; return its record."""
+    from bench.video import read_video, write_preview, write_video
+
+    t_start = time.perf_counter()
+    folder = Path(out_dir) / sample.sample_id
+    sim = simulate_sample(config, sample)
+    t_sim = time.perf_counter()
+
+    # --- Frames: render, record, encode
+    frames = SampleFrames(config, sample, sim)
+    n_frames = len(sim.times_s)
+    t_frames = time.perf_counter()
+    n_written = write_video(
+        folder / "video.mp4", (frames.frame(f) for f in range(n_frames)), sim.motion.fps
+    )
+    encode_s = time.perf_counter() - t_frames - frames.render_s - frames.response_s
+
+    # --- Labels, camera, preview (drawn on the decoded video: what the pipeline will see)
+    with atomic_path(folder / "labels.parquet") as tmp:
+        sim.labels.to_parquet(tmp, index=False)
+    write_json(folder / "camera.json", config.camera.to_dict())
+    preview = (
+        (frame, *corners_of_frame(sim.labels, f), f"frame {f}  t={sim.times_s[f]:.3f} s")
+        for f, frame in enumerate(read_video(folder / "video.mp4"))
+    )
+    write_preview(folder / "preview.mp4", preview, sim.motion.fps)
+
+    timing = SampleTiming(
+        frames=n_written,
+        simulate_s=t_sim - t_start,
+        render_s=frames.render_s,
+        response_s=frames.response_s,
+        encode_s=encode_s,
+        total_s=time.perf_counter() - t_start,
+    )
+    seeds = sample.seed_sequence(config.seed).generate_state(3)
+    record = {
+        "sample_id": sample.sample_id,
+        "foliage": sample.foliage,
+        "distance": sample.distance,
+        "penetration_mm": SAMPLING_PENETRATION_MM[sample.distance],
+        "branches_mm": list(sample.branches_mm),
+        "branch_gaps": [
+            list(gap_of_branch(b, sample.distance, config.array)) for b in sample.branches_mm
+        ],
+        "branches_veg_mm": [dataclasses.asdict(b) for b in sim.vegetation.branches],
+        "protocol": dataclasses.asdict(sim.motion),
+        "lighting": sample.lighting,
+        "seed": config.seed,
+        "sample_seeds": dict(zip(("render", "vegetation", "noise"), map(int, seeds), strict=True)),
+        "frames": n_written,
+        "frames_step": config.frames_step,
+        "exposure_ms": config.exposure_ms,
+        "sampling": dataclasses.asdict(config.sampling),
+        "region_px": dataclasses.asdict(frames.renderer.region),
+        "rays_per_frame": frames.renderer.rays_per_frame,
+        "array": config.array.to_json(),
+        "timing_s": dataclasses.asdict(timing),
+        "settings_sha256": config.settings_hash(),
+        "files": {name: sha256(folder / name) for name in SAMPLE_FILES},
+    }
+    write_json(folder / "sample.json", record)
+    return record
+
+
+def sha256(path: Path) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def sample_done(folder: Path, settings_sha256: str) -> bool:
+    """True when ``folder/sample.json`` exists and every file it lists verifies.
+
+    Raises ValueError when the sample was made with other settings (the folder holds another
+    dataset: refuse rather than mix).
+    """
+    record_path = folder / "sample.json"
+    if not record_path.exists():
+        return False
+    try:
+        record = json.loads(record_path.read_text())
+        files = record["files"]
+    except (ValueError, KeyError):
+        return False
+    if record.get("settings_sha256") != settings_sha256:
+        raise ValueError(
+            f"{folder} was made with other settings; choose another --out or delete it"
+        )
+    return all((folder / n).exists() and sha256(folder / n) == h for n, h in files.items())

@@ -1,0 +1,95 @@
+"""Generate a dataset into a folder: every sample (skipping verified ones), then the manifest."""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from bench.atomic import check_writable, write_json
+from bench.dataset import (
+    DatasetConfig,
+    DatasetConfigError,
+    SampleSpec,
+    run_sample,
+    sample_done,
+    sha256,
+)
+from bench.detectability import init_worker
+from bench.executor import run_tasks
+from bench.study import package_versions
+
+
+@dataclass(frozen=True)
+class _SampleTask:
+    config: DatasetConfig
+    sample: SampleSpec
+    out_dir: Path
+
+
+def _run_task(task: _SampleTask) -> dict:
+    return run_sample(task.config, task.sample, task.out_dir)
+
+
+def run_dataset(
+    config: DatasetConfig,
+    out_dir: Path,
+    variant: str | None = None,
+    workers: int = 1,
+    progress: bool = True,
+) -> dict:
+    """Make (or finish) the dataset in ``out_dir``; return its manifest.
+
+    Samples whose ``sample.json`` lists files that verify are skipped; a folder holding samples
+    made with other settings is refused (ValueError) before anything is written.
+    """
+    out_dir = Path(out_dir)
+    settings = config.settings_hash()
+    samples = config.samples()
+    try:
+        check_writable(out_dir)
+        todo = [s for s in samples if not sample_done(out_dir / s.sample_id, settings)]
+    except ValueError as exc:
+        raise DatasetConfigError("out", str(exc)) from None
+    threads = max(1, (os.cpu_count() or 1) // max(1, workers))
+    chosen = init_worker(variant)
+    start = time.perf_counter()
+    tasks = [_SampleTask(config, s, out_dir) for s in todo]
+    new = list(
+        run_tasks(
+            _run_task,
+            tasks,
+            workers=min(workers, len(tasks)) or 1,
+            initializer=init_worker,
+            initargs=(chosen, threads if workers > 1 else None),
+            desc="samples",
+            progress=progress,
+        )
+    )
+    wall_s = time.perf_counter() - start
+    records = [json.loads((out_dir / s.sample_id / "sample.json").read_text()) for s in samples]
+    frames_new = sum(r["frames"] for r in new)
+    manifest = {
+        "config": config.to_json(),
+        "settings_sha256": settings,
+        "versions": package_versions(),
+        "variant": chosen,
+        "samples": [r["sample_id"] for r in records],
+        "skipped": len(samples) - len(todo),
+        "files": {
+            f"{r['sample_id']}/{name}": digest
+            for r in records
+            for name, digest in {
+                **r["files"],
+                "sample.json": sha256(out_dir / r["sample_id"] / "sample.json"),
+            }.items()
+        },
+        "wall_s": wall_s,
+        "frames": sum(r["frames"] for r in records),
+        "frames_rendered": frames_new,
+        "frames_per_s": frames_new / wall_s if frames_new else None,
+    }
+    write_json(out_dir / "manifest.json", manifest)
+    return manifest
