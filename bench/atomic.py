@@ -52,3 +52,8 @@ def check_writable(folder: Path) -> None:
         existing = existing.parent
     if not existing.is_dir() or not os.access(existing, os.W_OK | os.X_OK):
         raise ValueError(f"{folder}: not writable (nearest existing folder: {existing})")
+    try:  # access() says yes to root everywhere; a real (vanishing) file says the truth
+        with tempfile.TemporaryFile(dir=existing):
+            pass
+    except OSError as exc:
+        raise ValueError(f"{folder}: not writable ({exc.strerror} in {existing})") from None

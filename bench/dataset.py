@@ -348,11 +348,16 @@ def run_sample(config: DatasetConfig, sample: SampleSpec, out_dir: Path) -> dict
     with atomic_path(folder / "labels.parquet") as tmp:
         sim.labels.to_parquet(tmp, index=False)
     write_json(folder / "camera.json", config.camera.to_dict())
-    preview = (
-        (frame, *corners_of_frame(sim.labels, f), f"frame {f}  t={sim.times_s[f]:.3f} s")
-        for f, frame in enumerate(read_video(folder / "video.mp4"))
+    truth = [corners_of_frame(sim.labels, f) for f in range(n_written)]
+    write_preview(
+        folder / "preview.mp4",
+        read_video(folder / "video.mp4"),
+        [t[0] for t in truth],
+        [t[1] for t in truth],
+        [t[2] for t in truth],
+        [f"frame {f}  t = {sim.times_s[f]:.3f} s" for f in range(n_written)],
+        sim.motion.fps,
     )
-    write_preview(folder / "preview.mp4", preview, sim.motion.fps)
 
     timing = SampleTiming(
         frames=n_written,

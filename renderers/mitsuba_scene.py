@@ -72,7 +72,10 @@ def diffuse_bsdf(value: float | tuple[float, float, float] | np.ndarray) -> dict
     if np.isscalar(value):
         return {"type": "diffuse", "reflectance": {"type": "rgb", "value": [float(value)] * 3}}
     if isinstance(value, tuple):
-        return {"type": "diffuse", "reflectance": {"type": "rgb", "value": [float(v) for v in value]}}
+        return {
+            "type": "diffuse",
+            "reflectance": {"type": "rgb", "value": [float(v) for v in value]},
+        }
     # The bitmap's first row sits at v = 0, the bottom of the print: flip so row 0 is the top.
     texture = np.ascontiguousarray(np.flipud(value))[..., None].repeat(3, axis=-1)
     return {

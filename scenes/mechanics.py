@@ -63,6 +63,8 @@ _TOL_RAD = 1e-10  # Newton stops when every whisker's step is below this (quadra
 _MAX_NEWTON = 80  # enough for pure bisection from any bracket at float64 resolution
 _MAX_PASSES = 8  # engage / solve / release rounds per step (springback can sweep new contacts)
 
+_Rel = tuple[np.ndarray, np.ndarray]  # (n, m) x and z of every contact relative to every coupling
+
 
 @dataclass(frozen=True)
 class MechanicsResult:
@@ -231,7 +233,7 @@ class _Pairs:
     limit: np.ndarray  # (m',)
 
 
-def _engaged_pairs(model: _Model, rel: tuple[np.ndarray, np.ndarray], st: _State) -> _Pairs:
+def _engaged_pairs(model: _Model, rel: _Rel, st: _State) -> _Pairs:
     cols = np.flatnonzero(st.engaged.any(axis=0))
     side, engaged = st.side[:, cols], st.engaged[:, cols]
     fol = model.foliage
@@ -272,7 +274,9 @@ def _torque(pr: _Pairs, ld: _Loads) -> tuple[np.ndarray, np.ndarray]:
     return torque, (ld.force * ld.delta - elastic * ld.k_eff * ld.a * ld.a).sum(axis=1)
 
 
-def _solve(model: _Model, pr: _Pairs, theta0, A, B, R) -> np.ndarray:
+def _solve(
+    model: _Model, pr: _Pairs, theta0: np.ndarray, A: np.ndarray, B: np.ndarray, R: np.ndarray
+) -> np.ndarray:
     """Roots of ``A theta - B torque(theta) = R`` per whisker (safeguarded Newton).
 
     Free rod: A = k, B = 1, R = 0. Rod held at a branch at geometric angle g with lever e*3EI:
@@ -296,7 +300,7 @@ def _solve(model: _Model, pr: _Pairs, theta0, A, B, R) -> np.ndarray:
     return theta
 
 
-def _engage(model: _Model, rel, theta: np.ndarray, st: _State) -> bool:
+def _engage(model: _Model, rel: _Rel, theta: np.ndarray, st: _State) -> bool:
     """Engage contacts the rod lines have swept across; refresh the others' sides."""
     a, c = _project(*rel, model.psi + theta)
     free = ~st.engaged
@@ -306,7 +310,9 @@ def _engage(model: _Model, rel, theta: np.ndarray, st: _State) -> bool:
     return bool(new.any())
 
 
-def _release(model: _Model, rel, theta: np.ndarray, st: _State) -> tuple[bool, _Pairs, _Loads]:
+def _release(
+    model: _Model, rel: _Rel, theta: np.ndarray, st: _State
+) -> tuple[bool, _Pairs, _Loads]:
     """Disengage contacts left behind, given way or off the rod; they keep their current side.
 
     Returns whether any did, and the loads that remain.
@@ -345,7 +351,9 @@ def _wrap(angle: np.ndarray) -> np.ndarray:
     return (angle + np.pi) % (2 * np.pi) - np.pi
 
 
-def _clamp(model, theta_free, gamma, beta, side) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _clamp(
+    model: _Model, theta_free: np.ndarray, gamma: np.ndarray, beta: np.ndarray, side: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(geometric angle, held (n,) bool, index of the holding branch): keep rods out of shadows.
 
     Every branch in reach ahead of the rod bounds theta from its remembered side; the rod takes
@@ -371,7 +379,10 @@ def _clamp(model, theta_free, gamma, beta, side) -> tuple[np.ndarray, np.ndarray
     return theta, theta != theta_free, which
 
 
-def _refresh_branch_sides(model, theta_geom, gamma, beta, st: _State) -> None:
+def _refresh_branch_sides(
+    model: _Model, theta_geom: np.ndarray, gamma: np.ndarray, beta: np.ndarray, st: _State
+) -> None:
+    """Remember the side of every shadow the rod is (strictly) outside of."""
     u = _wrap(model.psi[:, None] + theta_geom[:, None] - gamma)
     st.branch_side = np.where(np.abs(u) > beta, np.sign(u), st.branch_side)
 
@@ -379,8 +390,10 @@ def _refresh_branch_sides(model, theta_geom, gamma, beta, st: _State) -> None:
 # -- one step --------------------------------------------------------------------------------
 
 
-def _equilibrium(model: _Model, P: np.ndarray, rel, st: _State):
-    """Coupling angles for the current engaged set: spring + foliage, then branches."""
+def _equilibrium(
+    model: _Model, P: np.ndarray, rel: _Rel, st: _State
+) -> tuple[np.ndarray, np.ndarray]:
+    """(coupling angles, held by a branch): spring + foliage equilibrium, then branches."""
     n = model.psi.size
     pr = _engaged_pairs(model, rel, st)
     theta_free = _solve(model, pr, st.theta, model.k, np.ones(n), np.zeros(n))
@@ -406,7 +419,6 @@ def _step(model: _Model, P: np.ndarray, st: _State) -> tuple[np.ndarray, np.ndar
     """
     fol = model.foliage
     rel = (fol.x - P[:, :1], fol.z - P[:, 1:])
-    held = np.zeros(model.psi.size, dtype=bool)
     released = False
     for pass_ in range(_MAX_PASSES):
         engaged_new = _engage(model, rel, st.theta, st)
@@ -421,7 +433,9 @@ def _step(model: _Model, P: np.ndarray, st: _State) -> tuple[np.ndarray, np.ndar
 # -- public ----------------------------------------------------------------------------------
 
 
-def _model(spec, branches, foliage) -> _Model:
+def _model(
+    spec: ArraySpec, branches: Sequence[RigidCylinder], foliage: Sequence[CompliantContact]
+) -> _Model:
     psi = spec.headings_rad
     ei = spec.rod_bending_EI_Nmm2
     return _Model(
