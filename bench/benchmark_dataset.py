@@ -24,11 +24,15 @@ def pick_sample(config: DatasetConfig) -> SampleSpec:
     return (busy or samples)[0]
 
 
-def _time_frames(frames: SampleFrames, indices: np.ndarray) -> tuple[list[np.ndarray], float]:
-    frames.frame(int(indices[0]))  # warm-up: kernels compile on the first frame
+def _time_frames(
+    frames: SampleFrames, indices: np.ndarray
+) -> tuple[list[np.ndarray], float, float]:
+    """(images, render seconds, total seconds) after one warm-up frame (kernels compile)."""
+    frames.frame(int(indices[0]))
     frames.render_s = frames.response_s = 0.0
+    t0 = time.perf_counter()
     images = [frames.frame(int(f)) for f in indices]
-    return images, frames.render_s
+    return images, frames.render_s, time.perf_counter() - t0
 
 
 def _detections(image: np.ndarray, detector: DetectorConfig) -> dict[int, np.ndarray]:
@@ -49,9 +53,7 @@ def bench_dataset(config: DatasetConfig, frames: int = 30, variant: str | None =
         t0 = time.perf_counter()
         recorder = SampleFrames(config, sample, sim, sampling)
         setup_s = time.perf_counter() - t0
-        t0 = time.perf_counter()
-        images, render_s = _time_frames(recorder, indices)
-        total_s = time.perf_counter() - t0
+        images, render_s, total_s = _time_frames(recorder, indices)
         results[mode] = {
             "images": images,
             "rays_per_frame": recorder.renderer.rays_per_frame,

@@ -279,6 +279,7 @@ class SampleFrames:
             lighting,
             sampling or config.sampling,
             int(render_seed) % 2**31,
+            angles_rad=sim.angles_rad,
         )
         response = config.response
         if response.exposure != "auto":

@@ -2,10 +2,11 @@
 
 What a frame needs, and only that:
 
-* **Pixels.** Markers can only appear in a fixed horizontal band: each marker corner stays
-  within ``marker_offset + carrier half-diagonal`` of its coupling, so projecting those spheres
-  bounds every pixel a marker can cover (:func:`marker_region`). The default renders that band
-  over the full width (black elsewhere); ``full_frame`` renders the whole image circle.
+* **Pixels.** Markers can only appear in a horizontal band: the mechanics run before the
+  rendering, so the band is fitted to the markers' carriers over every deflection of the sample
+  (or, without them, to any deflection at all; :func:`marker_region`), plus a margin. The
+  default renders that band over the full width (black elsewhere); ``full_frame`` renders the
+  whole image circle.
   Inside the *zone* (the band's columns that markers can reach) pixels get ``marker_spp``
   samples; elsewhere ``background_spp``. The zone is sampled identically in both modes, so band
   and full frames differ only outside the band (``whiskerbench bench dataset`` measures that the
@@ -73,7 +74,7 @@ class FrameSampling:
     background_spp: int = 1
     subframes: int = 4
     full_frame: bool = False
-    margin_px: int = 24
+    margin_px: int = 16  # > half the detector's largest threshold window (23 px)
 
     def __post_init__(self) -> None:
         for name in ("marker_spp", "background_spp", "subframes"):
@@ -83,23 +84,38 @@ class FrameSampling:
             raise ValueError(f"margin_px={self.margin_px}: must be >= 0")
 
 
-def marker_region(camera: FisheyeCamera, spec: ArraySpec, margin_px: int) -> tuple[Window, Window]:
+def marker_region(
+    camera: FisheyeCamera,
+    spec: ArraySpec,
+    margin_px: int,
+    angles_rad: np.ndarray | None = None,
+) -> tuple[Window, Window]:
     """(band, zone): the full-width rows and the box that every marker pixel lies in.
 
-    A marker corner stays within ``marker_offset_mm + carrier half-diagonal`` of its coupling
-    whatever the deflection, so the projections of those spheres (sampled densely, plus
-    ``margin_px`` for the detector's threshold windows and the blur) bound the markers.
+    With ``angles_rad`` (..., n, 2), the deflections a sample will show, the box holds the
+    markers' carriers at all of them; without, any deflection at all (a marker corner stays
+    within ``marker_offset_mm + carrier half-diagonal`` of its coupling: the projections of those
+    spheres, sampled densely). ``margin_px`` adds room for the detector's threshold windows.
     """
-    half_diag = math.sqrt(2) * spec.marker_spec(spec.marker_ids[0]).carrier_half_mm
-    radius = spec.marker_offset_mm + half_diag + 1.0
-    polar = np.linspace(0, math.pi, 25)
-    azimuth = np.linspace(0, 2 * math.pi, 48, endpoint=False)
-    p, a = np.meshgrid(polar, azimuth)
-    sphere = radius * np.stack(
-        [np.sin(p) * np.cos(a), np.sin(p) * np.sin(a), np.cos(p)], axis=-1
-    ).reshape(-1, 3)
-    centres = T_cam_whisker(spec)[:, :3, 3]
-    px = camera.project((centres[:, None, :] + sphere[None]).reshape(-1, 3))
+    if angles_rad is None:
+        half_diag = math.sqrt(2) * spec.marker_spec(spec.marker_ids[0]).carrier_half_mm
+        radius = spec.marker_offset_mm + half_diag + 1.0
+        polar = np.linspace(0, math.pi, 25)
+        azimuth = np.linspace(0, 2 * math.pi, 48, endpoint=False)
+        p, a = np.meshgrid(polar, azimuth)
+        sphere = radius * np.stack(
+            [np.sin(p) * np.cos(a), np.sin(p) * np.sin(a), np.cos(p)], axis=-1
+        ).reshape(-1, 3)
+        centres = T_cam_whisker(spec)[:, :3, 3]
+        points = (centres[:, None, :] + sphere[None]).reshape(-1, 3)
+    else:
+        half = spec.marker_spec(spec.marker_ids[0]).carrier_half_mm
+        corners = np.array([[-1.0, 1.0], [1.0, 1.0], [1.0, -1.0], [-1.0, -1.0]]) * half
+        corners = np.column_stack([corners, np.zeros(4)])
+        T = T_cam_marker(spec, np.asarray(angles_rad, dtype=float).reshape(-1, spec.n_whiskers, 2))
+        points = np.einsum("...ij,kj->...ki", T[..., :3, :3], corners) + T[..., None, :3, 3]
+        points = points.reshape(-1, 3)
+    px = camera.project(points)
     if np.isnan(px).any():
         raise ValueError("a marker can leave the image circle: the array does not fit this camera")
     lo = np.floor(px.min(axis=0)).astype(int) - margin_px
@@ -291,14 +307,17 @@ class FrameRenderer:
         lighting: Lighting,
         sampling: FrameSampling,
         seed: int,
+        angles_rad: np.ndarray | None = None,
     ) -> None:
+        """``angles_rad`` (..., n, 2): every deflection the frames will show, to fit the band
+        to them (:func:`marker_region`); None fits it to any deflection."""
         if mi.variant() is None or mi.variant().startswith("scalar"):
             raise RuntimeError(
                 f"frame rendering needs a JIT variant (llvm_ad_rgb or cuda_ad_rgb), not "
                 f"{mi.variant()}; `make setup` installs the libLLVM that llvm_ad_rgb needs"
             )
         self.camera, self.spec, self.lighting, self.sampling = camera, spec, lighting, sampling
-        self.band, self.zone = marker_region(camera, spec, sampling.margin_px)
+        self.band, self.zone = marker_region(camera, spec, sampling.margin_px, angles_rad)
         self.region = Window.full(camera) if sampling.full_frame else self.band
         self.array = ArrayScene(spec)
         self.vegetation = vegetation_scene(vegetation_parts)
@@ -369,13 +388,21 @@ class FrameRenderer:
         return np.divide(out, self._count, out=np.zeros_like(out), where=self._count > 0)
 
     def _shade(self, batch: _Batch, shift: mi.Vector3f) -> mi.Float:
-        """Luminance of each ray: nearest of the array and the vegetation, lit by sky and sun."""
+        """Luminance of each ray: nearest of the array and the vegetation, lit by sky and sun.
+
+        The vegetation is searched only up to the array's hit (a shorter ray prunes the search),
+        surfaces are shaded only where they are the nearest hit, and shadow rays leave only
+        points that face the sun: work masked off costs little in a vectorized kernel.
+        """
         ray_cam = mi.Ray3f(mi.Point3f(0.0), batch.dirs)
-        ray_veg = mi.Ray3f(mi.Point3f(shift), batch.dirs)
         si_a = self.array.scene.ray_intersect(ray_cam)
+        ray_veg = mi.Ray3f(mi.Ray3f(mi.Point3f(shift), batch.dirs), si_a.t)
         si_v = self.vegetation.ray_intersect(ray_veg)
-        near_a = si_a.t < si_v.t
-        parts = [self._surface(si, ray_cam) for si in (si_a, si_v)]
+        near_a = si_a.is_valid() & ~si_v.is_valid()
+        parts = [
+            self._surface(si, ray_cam, active)
+            for si, active in ((si_a, near_a), (si_v, si_v.is_valid()))
+        ]
         normal, sky_albedo, sun_f = (
             dr.select(near_a, a, v) for a, v in zip(parts[0], parts[1], strict=True)
         )
@@ -387,12 +414,13 @@ class FrameRenderer:
         v = dr.clip(dr.acos(dr.clip(normal.z, -1.0, 1.0)) / math.pi, half, 1.0 - half)
         lum = dr.sum(sky_albedo) * self._irradiance.eval(mi.Point2f(u, v))[0] / math.pi
         if self._sun is not None:
-            lum += dr.sum(sun_f) * self._sun_visible(p_cam, normal, shift, batch, hit)
+            sun = dr.sum(sun_f)
+            lum += sun * self._sun_visible(p_cam, normal, shift, batch, hit & (sun > 0))
         return dr.select(hit, lum, batch.sky_escape)
 
-    def _surface(self, si: mi.SurfaceInteraction3f, ray: mi.Ray3f):
-        """(normal, albedo x sky colour, BSDF x sun) of one scene's hits; zero on back faces."""
-        front = si.is_valid() & (dr.dot(si.sh_frame.n, -ray.d) > 0)
+    def _surface(self, si: mi.SurfaceInteraction3f, ray: mi.Ray3f, active: mi.Bool):
+        """(normal, albedo x sky colour, BSDF x sun) where ``active``; zero on back faces."""
+        front = active & (dr.dot(si.sh_frame.n, -ray.d) > 0)
         bsdf = si.bsdf()
         albedo = bsdf.eval_diffuse_reflectance(si, front)
         sun_f = mi.Color3f(0.0)
@@ -402,12 +430,14 @@ class FrameRenderer:
         normal = dr.select(front, si.sh_frame.n, mi.Vector3f(0.0, 0.0, 1.0))
         return normal, dr.select(front, albedo * self._sky_lum, 0.0), dr.select(front, sun_f, 0.0)
 
-    def _sun_visible(self, p_cam, normal, shift, batch: _Batch, hit) -> mi.Float:
+    def _sun_visible(self, p_cam, normal, shift, batch: _Batch, active) -> mi.Float:
         """1 where the sun reaches the point past the array, the vegetation and the canopy."""
         to_sun = self._sun[0]
         origin = p_cam + normal * SHADOW_EPS_MM
-        blocked = self.array.scene.ray_test(mi.Ray3f(origin, to_sun), hit)
-        blocked |= self.vegetation.ray_test(mi.Ray3f(origin + shift, to_sun), hit)
+        blocked = self.array.scene.ray_test(mi.Ray3f(origin, to_sun), active)
+        blocked |= self.vegetation.ray_test(mi.Ray3f(origin + shift, to_sun), active & ~blocked)
         if self.canopy is not None:
-            blocked |= self.canopy.ray_test(mi.Ray3f(origin + shift, batch.to_sun), hit)
+            blocked |= self.canopy.ray_test(
+                mi.Ray3f(origin + shift, batch.to_sun), active & ~blocked
+            )
         return dr.select(blocked, 0.0, 1.0)
