@@ -8,10 +8,14 @@ in both modes, so any difference comes from pixels outside the band.
 from __future__ import annotations
 
 import dataclasses
+import os
 import time
+from pathlib import Path
 
+import cv2
 import numpy as np
 
+from bench.atomic import write_bytes, write_json
 from bench.dataset import DatasetConfig, SampleFrames, SampleSpec, simulate_sample
 from bench.detectability import init_worker
 from pipeline.detect import DetectorConfig, detect_markers
@@ -39,14 +43,38 @@ def _detections(image: np.ndarray, detector: DetectorConfig) -> dict[int, np.nda
     return {d.marker_id: d.corners_px for d in detect_markers(image, detector)}
 
 
-def bench_dataset(config: DatasetConfig, frames: int = 30, variant: str | None = None) -> dict:
-    """Time band and full-frame rendering on the same frames; print and return the figures."""
+def write_still(path: Path, image: np.ndarray, labels, frame: int, zone) -> None:
+    """The zone of one frame with its ground truth drawn, as a PNG (the README's still)."""
+    from bench.labels import corners_of_frame
+    from bench.video import draw_preview
+
+    drawn = draw_preview(image, *corners_of_frame(labels, frame))
+    crop = drawn[zone.y0 : zone.y0 + zone.height, zone.x0 : zone.x0 + zone.width]
+    write_bytes(path, cv2.imencode(".png", crop)[1].tobytes())
+
+
+def bench_dataset(
+    config: DatasetConfig,
+    frames: int = 30,
+    variant: str | None = None,
+    out_dir: Path | None = None,
+) -> dict:
+    """Time band and full-frame rendering on the same frames; print and return the figures.
+
+    With ``out_dir``, also write the figures (``bench.json``) and a still of the timed frame
+    with the largest deflection, ground truth drawn (``still.png``).
+    """
     chosen = init_worker(variant)
     sample = pick_sample(config)
     sim = simulate_sample(config, sample)
-    start = int(np.searchsorted(sim.times_s, sim.motion.whisking_start_s))
-    indices = np.arange(start, min(start + frames, len(sim.times_s)))
-    print(f"sample {sample.sample_id}: {len(indices)} whisking frames, variant {chosen}")
+    # the frames around the largest deflection: whiskers bent, the busiest scene
+    deflection = sim.labels.groupby("frame")["deflection_mm"].max().to_numpy()
+    start = int(np.clip(np.argmax(deflection) - frames // 2, 0, max(0, len(deflection) - frames)))
+    indices = np.arange(start, min(start + frames, len(deflection)))
+    print(
+        f"sample {sample.sample_id}: frames {indices[0]}-{indices[-1]} (largest deflection "
+        f"{deflection.max():.1f} mm), variant {chosen}"
+    )
     results = {}
     for mode, full in (("band", False), ("full", True)):
         sampling = dataclasses.replace(config.sampling, full_frame=full)
@@ -85,7 +113,7 @@ def bench_dataset(config: DatasetConfig, frames: int = 30, variant: str | None =
         f"detections: identical id sets in {same_ids}/{len(indices)} frames "
         f"({n_det} markers found in band frames); largest corner difference {max_diff:.3f} px"
     )
-    return {
+    figures = {
         "sample": sample.sample_id,
         "variant": chosen,
         "band_render_fps": results["band"]["render_fps"],
@@ -96,4 +124,20 @@ def bench_dataset(config: DatasetConfig, frames: int = 30, variant: str | None =
         "same_id_frames": same_ids,
         "frames": len(indices),
         "max_corner_diff_px": max_diff,
+        "band_px": dataclasses.asdict(results["band"]["region"]),
+        "rays_per_frame": {m: results[m]["rays_per_frame"] for m in results},
+        "cpu_count": os.cpu_count(),
     }
+    if out_dir is not None:
+        pick = int(np.argmax(deflection[indices]))
+        zone = SampleFrames(config, sample, sim).renderer.zone
+        write_still(
+            Path(out_dir) / "still.png",
+            results["band"]["images"][pick],
+            sim.labels,
+            int(indices[pick]),
+            zone,
+        )
+        write_json(Path(out_dir) / "bench.json", figures)
+        print(f"wrote {out_dir}/bench.json and still.png (frame {indices[pick]})")
+    return figures

@@ -219,6 +219,9 @@ def _parser() -> argparse.ArgumentParser:
     )
     add_dataset_options(bdata)
     bdata.add_argument("--frames", type=int, default=30, help="frames timed per mode (default 30)")
+    bdata.add_argument(
+        "--out", help="also write bench.json and a still frame (still.png) into this folder"
+    )
     bdata.set_defaults(func=cmd_bench_dataset)
     return parser
 

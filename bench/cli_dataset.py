@@ -167,5 +167,5 @@ def cmd_dataset(args: argparse.Namespace) -> int:
 def cmd_bench_dataset(args: argparse.Namespace) -> int:
     from bench.benchmark_dataset import bench_dataset
 
-    bench_dataset(dataset_config(args), frames=args.frames, variant=args.variant)
+    bench_dataset(dataset_config(args), frames=args.frames, variant=args.variant, out_dir=args.out)
     return 0

@@ -25,10 +25,11 @@ def run_tasks(
     initargs: tuple = (),
     desc: str = "tasks",
     progress: bool = True,
+    unit: str = "cell",
 ) -> Iterator[Any]:
     """Yield ``fn(task)`` for each task (in completion order), with a progress bar."""
     tasks = list(tasks)
-    bar = tqdm(total=len(tasks), desc=desc, unit="cell", disable=not progress, smoothing=0.1)
+    bar = tqdm(total=len(tasks), desc=desc, unit=unit, disable=not progress, smoothing=0.1)
     try:
         if workers <= 1:
             if initializer is not None:

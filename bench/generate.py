@@ -65,6 +65,7 @@ def run_dataset(
             initializer=init_worker,
             initargs=(chosen, threads if workers > 1 else None),
             desc="samples",
+            unit="sample",
             progress=progress,
         )
     )
