@@ -281,10 +281,7 @@ class SampleFrames:
             int(render_seed) % 2**31,
             angles_rad=sim.angles_rad,
         )
-        response = config.response
-        if response.exposure != "auto":
-            response = dataclasses.replace(response, exposure=response.exposure * lighting.exposure)
-        self.response = response
+        self.response = config.response.scaled(lighting.exposure)
         self.rng_band, self.rng_rest = (
             np.random.default_rng(s) for s in np.random.SeedSequence(noise_seed).spawn(2)
         )

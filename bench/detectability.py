@@ -25,14 +25,13 @@ import pandas as pd
 from bench.atomic import atomic_path, write_bytes
 from pipeline.detect import DetectorConfig, detect_markers
 from pipeline.pose import estimate_pose
-from renderers.response import CameraResponse, apply_response
+from renderers.response import LUMINANCE_RGB, CameraResponse, apply_response
 from scenes.camera import FisheyeCamera, default_camera
 from scenes.conventions import marker_corners_marker, rotation_angle_deg, transform_points
 from scenes.lighting import get_lighting
 from scenes.marker import MarkerSpec, carrier_mesh, check_dictionary
 from scenes.study import MAX_PHI_DEG, study_pose
 
-LUMINANCE_RGB = np.array([0.2126, 0.7152, 0.0722])  # Rec. 709 / sRGB luminance weights
 DEFAULT_SIZES_MM = (8.8, 11.0, 13.2, 17.6)
 DEFAULT_ALPHAS_DEG = (0.0, 20.0, 40.0, 60.0, 70.0, 80.0, 85.0, 90.0)
 DEFAULT_PHIS_DEG = tuple(float(p) for p in range(0, 80, 10))
@@ -213,10 +212,7 @@ def camera_images(
     ``radiance`` is (H, W, 3), drawn ``n_images`` times, or (N, H, W, 3), one image each; a
     fixed exposure is scaled by the lighting preset's own.
     """
-    response = config.response
-    if response.exposure != "auto":
-        exposure = response.exposure * get_lighting(lighting_name).exposure
-        response = dataclasses.replace(response, exposure=exposure)
+    response = config.response.scaled(get_lighting(lighting_name).exposure)
     return apply_response(
         (radiance @ LUMINANCE_RGB).astype(np.float32),
         response,

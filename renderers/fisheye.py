@@ -250,7 +250,7 @@ def canopy_visibility(
     hit = np.flatnonzero(~np.isnan(pos[:, 0]))
     shift = rng.uniform(-spec.max_shift_mm, spec.max_shift_mm, (n_images, 2))
     origins = pos[hit][None] - (shift[:, :1] * u + shift[:, 1:] * v)[:, None, :]
-    dirs = _jitter_in_cone(
+    dirs = jitter_in_cone(
         np.asarray(sun.to_sun_cam), np.radians(sun.angular_radius_deg), (n_images, len(hit)), rng
     )
     vis = np.ones((n_images, len(pos)), np.float32)
@@ -260,7 +260,7 @@ def canopy_visibility(
     return vis.reshape((n_images,) + rendered.shadow_points_cam.shape[:3]).mean(axis=-1)
 
 
-def _jitter_in_cone(
+def jitter_in_cone(
     axis: np.ndarray, half_angle: float, shape: tuple[int, ...], rng: np.random.Generator
 ) -> np.ndarray:
     """Unit directions uniform over the disk of angular radius ``half_angle`` around ``axis``."""

@@ -42,7 +42,9 @@ import mitsuba as mi
 import numpy as np
 import trimesh
 
+from renderers.fisheye import jitter_in_cone
 from renderers.mitsuba_scene import CanopyScene, diffuse_bsdf, mesh_to_mitsuba
+from renderers.response import LUMINANCE_RGB
 from renderers.sky_irradiance import irradiance_table
 from renderers.window import Window
 from scenes.array import (
@@ -58,8 +60,6 @@ from scenes.camera import FisheyeCamera
 from scenes.lighting import Lighting
 from scenes.marker import marker_albedo
 
-#: Rec. 709 luminance weights: the detector sees grey images.
-LUMINANCE_RGB = np.array([0.2126, 0.7152, 0.0722])
 ROD_ALBEDO = 0.55  # translucent white polyester, seen as a light grey
 CARRIER_ALBEDO = 0.8
 PLATE_ALBEDO = 0.12  # the dark printed arc behind the markers
@@ -261,7 +261,7 @@ def _ray_plan(
             )
         sun = None
         if sun_cone is not None:
-            sun = _jitter_in_cone(*sun_cone, len(xy), rng)[keep]
+            sun = jitter_in_cone(*sun_cone, (len(xy),), rng)[keep]
         parts.append((pos.reshape(-1, 2)[keep], xy[keep], slot[keep], sun))
     pos, xy, slot = (np.concatenate([p[i] for p in parts]) for i in range(3))
     dirs, valid = camera.unproject(pos)
@@ -280,17 +280,6 @@ def _ray_plan(
         )
     count = np.bincount(pixel[valid], minlength=region.height * region.width)
     return plans, count.reshape(region.shape)
-
-
-def _jitter_in_cone(axis: np.ndarray, half_angle: float, n: int, rng) -> np.ndarray:
-    """(n, 3) unit directions uniform over the disk of angular radius ``half_angle``."""
-    u = np.cross(axis, [0.0, 0.0, 1.0] if abs(axis[2]) < 0.9 else [1.0, 0.0, 0.0])
-    u /= np.linalg.norm(u)
-    v = np.cross(axis, u)
-    r = half_angle * np.sqrt(rng.random(n))
-    a = rng.uniform(0, 2 * np.pi, n)
-    d = axis + (r * np.cos(a))[:, None] * u + (r * np.sin(a))[:, None] * v
-    return d / np.linalg.norm(d, axis=-1, keepdims=True)
 
 
 # -- rendering -------------------------------------------------------------------------------

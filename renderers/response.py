@@ -35,7 +35,7 @@ truncated at 4.3 sigma, variance normalized to 1). Output is deterministic for a
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import cache
 from statistics import NormalDist
 
@@ -43,6 +43,8 @@ import cv2
 import numpy as np
 
 GAMMAS = ("srgb", "linear")
+#: Rec. 709 / sRGB luminance weights: the camera response works on the grey the detector sees.
+LUMINANCE_RGB = np.array([0.2126, 0.7152, 0.0722])
 
 #: Below this many expected electrons shot noise is drawn exactly from a Poisson distribution.
 POISSON_EXACT_BELOW_E = 100.0
@@ -97,6 +99,13 @@ class CameraResponse:
             isinstance(q, int | np.integer) and not isinstance(q, bool) and 1 <= q <= 100
         ):
             raise ValueError(f"jpeg_quality={q!r}: must be None or an integer in 1..100")
+
+    def scaled(self, factor: float) -> CameraResponse:
+        """This response with a fixed exposure multiplied by ``factor`` (a lighting preset's
+        own exposure); ``"auto"`` meters the scene itself and stays as it is."""
+        if self.exposure == "auto":
+            return self
+        return replace(self, exposure=self.exposure * factor)
 
     @property
     def blur_on(self) -> bool:
