@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 
 from bench.atomic import atomic_path, write_json
 from bench.labels import corners_of_frame, label_table
@@ -35,6 +36,7 @@ from scenes.motion import MotionSpec, MotionSpecError, get_protocol
 from scenes.vegetation import (
     FOLIAGE_KINDS,
     SAMPLING_PENETRATION_MM,
+    Vegetation,
     VegetationSpec,
     branch_reach_error,
     gap_of_branch,
@@ -53,6 +55,7 @@ DEFAULT_BRANCHES: tuple[tuple[float, ...], ...] = (
 )
 DEFAULT_PROTOCOLS = ("indoor", "outdoor")
 SAMPLE_FILES = ("video.mp4", "labels.parquet", "camera.json", "preview.mp4")
+SEED_NAMES = ("render", "vegetation", "noise")
 #: The lead-in holds the array this far (mm) short of the foliage front: no contact.
 APPROACH_CLEARANCE_MM = 15.0
 
@@ -86,8 +89,12 @@ class SampleSpec:
         parts = (self.foliage, self.distance, branches_name(self.branches_mm), self.protocol)
         return "-".join((*parts, self.lighting))
 
-    def seed_sequence(self, seed: int) -> np.random.SeedSequence:
-        return np.random.SeedSequence(seed, spawn_key=(zlib.crc32(self.sample_id.encode()),))
+    def seeds(self, seed: int) -> dict[str, int]:
+        """The sample's own seeds (render jitter, vegetation layout, sensor noise), from the
+        dataset seed and the sample id: independent of which other samples run."""
+        sequence = np.random.SeedSequence(seed, spawn_key=(zlib.crc32(self.sample_id.encode()),))
+        state = sequence.generate_state(3)
+        return {name: int(v) % 2**31 for name, v in zip(SEED_NAMES, state, strict=True)}
 
 
 @dataclass(frozen=True)
@@ -217,13 +224,13 @@ def sample_times(motion: MotionSpec, exposure_s: float, subframes: int, step: in
 class SimulatedSample:
     """A sample's path and mechanics: everything but the pixels."""
 
-    vegetation: object  # scenes.vegetation.Vegetation
+    vegetation: Vegetation
     motion: MotionSpec
     times_s: np.ndarray  # (F,) frame timestamps (middle of the exposure)
     source_frames: np.ndarray  # (F,) indices at the protocol's full frame rate
     sub_times_s: np.ndarray  # (F, K) time samples within each exposure
     angles_rad: np.ndarray  # (F, K + 1, n, 2): at the K time samples, then at the timestamp
-    labels: object  # pandas.DataFrame of bench.labels
+    labels: pd.DataFrame  # bench.labels.label_table
 
 
 def simulate_sample(config: DatasetConfig, sample: SampleSpec) -> SimulatedSample:
@@ -231,11 +238,15 @@ def simulate_sample(config: DatasetConfig, sample: SampleSpec) -> SimulatedSampl
     from scenes.mechanics import simulate
     from scenes.vegetation import build_vegetation
 
-    _, veg_seed, _ = sample.seed_sequence(config.seed).generate_state(3)
     motion = config.motion(sample.protocol, sample.distance)
     k = config.sampling.subframes
     vegetation = build_vegetation(
-        VegetationSpec(sample.foliage, sample.distance, sample.branches_mm, int(veg_seed) % 2**31),
+        VegetationSpec(
+            sample.foliage,
+            sample.distance,
+            sample.branches_mm,
+            sample.seeds(config.seed)["vegetation"],
+        ),
         config.array,
     )
     times, source, sub_times = sample_times(
@@ -269,7 +280,7 @@ class SampleFrames:
     ) -> None:
         from renderers.frames import FrameRenderer
 
-        render_seed, _, noise_seed = sample.seed_sequence(config.seed).generate_state(3)
+        seeds = sample.seeds(config.seed)
         self.config, self.sim = config, sim
         lighting = get_lighting(sample.lighting)
         self.renderer = FrameRenderer(
@@ -278,13 +289,14 @@ class SampleFrames:
             [(p.name, p.mesh, p.albedo_rgb) for p in sim.vegetation.parts],
             lighting,
             sampling or config.sampling,
-            int(render_seed) % 2**31,
+            seeds["render"],
             angles_rad=sim.angles_rad,
         )
         self.response = config.response.scaled(lighting.exposure)
         self.rng_band, self.rng_rest = (
-            np.random.default_rng(s) for s in np.random.SeedSequence(noise_seed).spawn(2)
+            np.random.default_rng(s) for s in np.random.SeedSequence(seeds["noise"]).spawn(2)
         )
+        self._theta: dict = {}
         self.render_s = self.response_s = 0.0
 
     def luminance(self, f: int) -> np.ndarray:
@@ -296,7 +308,9 @@ class SampleFrames:
     def _record(self, luminance: np.ndarray, window, inside: np.ndarray, rng) -> np.ndarray:
         theta = None
         if self.response.needs_theta:
-            theta = self.config.camera.theta_of_pixel(window.pixel_centres())
+            if window not in self._theta:  # per-pixel ray angles: once per window, not per frame
+                self._theta[window] = self.config.camera.theta_of_pixel(window.pixel_centres())
+            theta = self._theta[window]
         return apply_response(
             luminance, self.response, rng, 1, theta, self.config.camera.theta_max_rad, inside
         )[0]
@@ -365,7 +379,6 @@ def run_sample(config: DatasetConfig, sample: SampleSpec, out_dir: Path) -> dict
         encode_s=encode_s,
         total_s=time.perf_counter() - t_start,
     )
-    seeds = sample.seed_sequence(config.seed).generate_state(3)
     record = {
         "sample_id": sample.sample_id,
         "foliage": sample.foliage,
@@ -379,7 +392,7 @@ def run_sample(config: DatasetConfig, sample: SampleSpec, out_dir: Path) -> dict
         "protocol": dataclasses.asdict(sim.motion),
         "lighting": sample.lighting,
         "seed": config.seed,
-        "sample_seeds": dict(zip(("render", "vegetation", "noise"), map(int, seeds), strict=True)),
+        "sample_seeds": sample.seeds(config.seed),
         "frames": n_written,
         "frames_step": config.frames_step,
         "exposure_ms": config.exposure_ms,

@@ -145,3 +145,24 @@ def test_bad_options_one_line_exit_2_nothing_written(tmp_path, args, option) -> 
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and option in lines[0]
     assert not out.exists()
+
+
+def test_vignetting_darkens_the_frame_edges(variant) -> None:
+    """The per-pixel ray angle reaches the camera response (computed once per window)."""
+    if variant.startswith("scalar"):
+        pytest.skip("frame rendering needs a JIT variant")
+    import dataclasses
+
+    from bench.dataset import SampleFrames
+    from renderers.response import CameraResponse
+
+    plain = DatasetConfig(**SMALL)
+    vignetted = dataclasses.replace(plain, response=CameraResponse(vignetting=0.6, read_noise_e=0))
+    sample = plain.samples()[0]
+    sim = simulate_sample(plain, sample)
+    a = SampleFrames(plain, sample, sim).frame(0).astype(float)
+    b = SampleFrames(vignetted, sample, sim).frame(0).astype(float)
+    row = 971
+    centre, edge = slice(1200, 1400), slice(400, 600)
+    assert b[row, centre].mean() == pytest.approx(a[row, centre].mean(), rel=0.1)
+    assert b[row, edge].mean() < 0.85 * a[row, edge].mean()
