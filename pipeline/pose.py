@@ -33,18 +33,49 @@ def virtual_view_rotation(axis_cam: np.ndarray) -> np.ndarray:
     return np.stack([x, np.cross(z, x), z])
 
 
-def estimate_pose(corners_px: np.ndarray, size_mm: float, camera: FisheyeCamera) -> PoseEstimate:
-    """Pose of a square marker of side ``size_mm`` from its 4 corners (ArUco order, pixels)."""
-    rays, valid = camera.unproject(np.asarray(corners_px, dtype=float).reshape(4, 2))
-    if not valid.all():
-        raise ValueError("a corner lies outside the image circle")
-    R_virt_cam = virtual_view_rotation(rays.sum(axis=0))
-    q = rays @ R_virt_cam.T
+POSE_METHODS = ("virtual", "fisheye", "pinhole")
+
+
+def estimate_pose(
+    corners_px: np.ndarray, size_mm: float, camera: FisheyeCamera, method: str = "virtual"
+) -> PoseEstimate:
+    """Pose of a square marker of side ``size_mm`` from its 4 corners (ArUco order, pixels).
+
+    ``method``: ``"virtual"`` (rays from the exact model, a virtual pinhole view aimed at the
+    marker, valid past 90 degrees), ``"fisheye"`` (OpenCV's fisheye undistortion to the
+    camera's own pinhole plane, valid below 90 degrees only) or ``"pinhole"`` (a naive baseline:
+    the raw pixels as if the lens had no distortion).
+    """
+    corners = np.asarray(corners_px, dtype=float).reshape(4, 2)
     f = camera.fx_px  # keeps reprojection errors in (about) image pixels
-    image_points = (f * q[:, :2] / q[:, 2:]).reshape(4, 1, 2)
+    if method == "virtual":
+        rays, valid = camera.unproject(corners)
+        if not valid.all():
+            raise ValueError("a corner lies outside the image circle")
+        R_virt_cam = virtual_view_rotation(rays.sum(axis=0))
+        q = rays @ R_virt_cam.T
+        return _solve(f * q[:, :2] / q[:, 2:], size_mm, f, R_virt_cam)
+    if method == "fisheye":
+        cv = camera.to_opencv()
+        normalized = cv2.fisheye.undistortPoints(corners.reshape(1, 4, 2), cv["K"], cv["D"])
+        if not np.isfinite(normalized).all() or (camera.theta_of_pixel(corners) >= np.pi / 2).any():
+            raise ValueError("a corner lies at or beyond 90 degrees: no pinhole image of it")
+        return _solve(f * normalized.reshape(4, 2), size_mm, f, np.eye(3))
+    if method == "pinhole":
+        centred = corners - [camera.cx_px, camera.cy_px]
+        return _solve(centred * f / np.array([camera.fx_px, camera.fy_px]), size_mm, f, np.eye(3))
+    raise ValueError(f"method={method!r}: choose from {', '.join(POSE_METHODS)}")
+
+
+def _solve(image_points: np.ndarray, size_mm: float, f: float, R_virt_cam: np.ndarray):
+    """IPPE_SQUARE on pinhole points (centred, focal ``f``) of a view rotated by R_virt_cam."""
     K = np.array([[f, 0.0, 0.0], [0.0, f, 0.0], [0.0, 0.0, 1.0]])
     n, rvecs, tvecs, errors = cv2.solvePnPGeneric(
-        marker_corners_marker(size_mm), image_points, K, None, flags=cv2.SOLVEPNP_IPPE_SQUARE
+        marker_corners_marker(size_mm),
+        image_points.reshape(4, 1, 2),
+        K,
+        None,
+        flags=cv2.SOLVEPNP_IPPE_SQUARE,
     )
     if n < 1:
         raise ValueError("solvePnP found no pose")
