@@ -42,29 +42,78 @@ class TrackResult:
     pose_failures: int
 
 
+SEARCHES = ("full", "roi")
+
+
+@dataclass(frozen=True)
+class Search:
+    """Where to look. ``"full"``: the whole frame, every frame. ``"roi"``: only the box around
+    the markers' last corners (plus ``margin_px``); the whole frame to (re)acquire: on the first
+    frame, after a tracked marker is lost, and every ``reacquire_every`` frames while fewer than
+    all markers are tracked."""
+
+    mode: str = "full"
+    margin_px: int = 48
+    reacquire_every: int = 15
+
+    def __post_init__(self) -> None:
+        if self.mode not in SEARCHES:
+            raise ValueError(f"search={self.mode!r}: choose from {', '.join(SEARCHES)}")
+        if self.margin_px < 0 or self.reacquire_every < 1:
+            raise ValueError("need margin_px >= 0 and reacquire_every >= 1")
+
+
 def track(
     frames: Iterable[np.ndarray],
     camera: FisheyeCamera,
     markers: MarkerSet,
     detector: DetectorConfig,
+    search: Search = Search(),
+    pose_method: str = "virtual",
 ) -> TrackResult:
     """Detect the array's markers and estimate their poses in every frame."""
     whisker_of = {m: i for i, m in enumerate(markers.marker_ids)}
     rows: list[dict] = []
     foreign = failures = n_frames = 0
+    last: dict[int, np.ndarray] = {}  # marker id -> corners in the previous frame
+    since_full = 0
     for f, frame in enumerate(frames):
         n_frames += 1
-        for det in detect_markers(frame, detector, camera=camera):
+        box = None
+        if search.mode == "roi" and last:
+            complete = len(last) == len(whisker_of)
+            if complete or since_full < search.reacquire_every:
+                box = _box(np.concatenate(list(last.values())), frame.shape, search.margin_px)
+        if box is None:
+            since_full = 0
+            found = detect_markers(frame, detector, camera=camera)
+        else:
+            since_full += 1
+            x0, y0, x1, y1 = box
+            found = detect_markers(frame[y0:y1, x0:x1], detector, (x0, y0), camera=camera)
+        seen: dict[int, np.ndarray] = {}
+        for det in found:
             if det.marker_id not in whisker_of:
                 foreign += 1
                 continue
             try:
-                pose = estimate_pose(det.corners_px, markers.size_mm, camera)
+                pose = estimate_pose(det.corners_px, markers.size_mm, camera, pose_method)
             except ValueError:
                 failures += 1
                 continue
+            seen[det.marker_id] = det.corners_px
             rows.append(_row(f, det.marker_id, whisker_of[det.marker_id], det.corners_px, pose))
+        if box is not None and set(last) - set(seen):
+            since_full = search.reacquire_every  # a tracked marker was lost: search it all next
+        last = seen
     return TrackResult(_table(rows), n_frames, foreign, failures)
+
+
+def _box(corners: np.ndarray, shape: tuple[int, ...], margin: int) -> tuple[int, int, int, int]:
+    """(x0, y0, x1, y1) of the corners plus margin, clipped to the image (x1, y1 exclusive)."""
+    lo = np.floor(corners.min(axis=0)).astype(int) - margin
+    hi = np.ceil(corners.max(axis=0)).astype(int) + margin + 1
+    return (max(lo[0], 0), max(lo[1], 0), min(hi[0], shape[1]), min(hi[1], shape[0]))
 
 
 def _row(frame: int, marker_id: int, whisker: int, corners: np.ndarray, pose) -> dict:

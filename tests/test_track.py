@@ -7,7 +7,7 @@ import pandas as pd
 import pytest
 
 from pipeline.detect import DetectorConfig
-from pipeline.track import MarkerSet, pose_arrays, track
+from pipeline.track import MarkerSet, Search, pose_arrays, track
 from scenes.camera import default_camera
 
 
@@ -34,7 +34,9 @@ def test_marker_set_rejects_duplicates() -> None:
         MarkerSet((1, 1), 13.2)
 
 
-def test_tracking_a_rendered_sample_matches_its_labels(variant) -> None:
+@pytest.fixture(scope="module")
+def rendered(variant):
+    """A short rendered sample: (frames, labels, camera, markers)."""
     if variant.startswith("scalar"):
         pytest.skip("frame rendering needs a JIT variant")
     from bench.dataset import DatasetConfig, SampleFrames, simulate_sample
@@ -46,18 +48,37 @@ def test_tracking_a_rendered_sample_matches_its_labels(variant) -> None:
         protocols=("outdoor",),
         lightings=("lab",),
         passes=1,
-        frames_step=10,
+        frames_step=6,
     )
     sample = config.samples()[0]
     sim = simulate_sample(config, sample)
     frames = SampleFrames(config, sample, sim)
-    images = (frames.frame(f) for f in range(len(sim.times_s)))
+    images = [frames.frame(f) for f in range(len(sim.times_s))]
     markers = MarkerSet(config.array.marker_ids, config.array.marker_size_mm)
-    result = track(images, default_camera(), markers, DetectorConfig(corner_refinement="lines"))
-    assert result.frames == len(sim.times_s) and result.foreign_ids == 0
-    joined = result.detections.merge(sim.labels, on=["frame", "marker_id"], suffixes=("", "_gt"))
-    assert len(joined) >= 0.98 * sim.labels["visible"].sum()
-    err = np.hypot(
-        *(joined[f"t_CM_{a}_mm"] - joined[f"t_CM_{a}_mm_gt"] for a in "xy")
-    )  # lateral position error of the pose, mm
-    assert np.median(err) < 0.2
+    return images, sim.labels, default_camera(), markers
+
+
+def test_tracking_a_rendered_sample_matches_its_labels(rendered) -> None:
+    images, labels, camera, markers = rendered
+    result = track(images, camera, markers, DetectorConfig(corner_refinement="lines"))
+    assert result.frames == len(images) and result.foreign_ids == 0
+    joined = result.detections.merge(labels, on=["frame", "marker_id"], suffixes=("", "_gt"))
+    assert len(joined) >= 0.98 * labels["visible"].sum()
+    err = np.hypot(*(joined[f"t_CM_{a}_mm"] - joined[f"t_CM_{a}_mm_gt"] for a in "xy"))
+    assert np.median(err) < 0.2  # lateral position of the pose, mm
+
+
+def test_roi_tracking_finds_what_full_frame_search_finds(rendered) -> None:
+    images, _, camera, markers = rendered
+    detector = DetectorConfig(corner_refinement="subpix")
+    full = track(images, camera, markers, detector).detections
+    roi = track(images, camera, markers, detector, Search("roi")).detections
+    assert abs(len(roi) - len(full)) <= 0.01 * len(full)
+    both = full.merge(roi, on=["frame", "marker_id"], suffixes=("", "_roi"))
+    diff = np.abs(both["c0_x_px"] - both["c0_x_px_roi"])
+    assert len(both) >= 0.99 * len(full) and np.median(diff) < 0.01
+
+
+def test_search_rejects_unknown_mode() -> None:
+    with pytest.raises(ValueError, match="choose from"):
+        Search("everywhere")
