@@ -1,0 +1,372 @@
+"""Branch finding from marker poses: the stages of SPEC 3 after per-marker pose estimation.
+
+Every stage is a small vectorized NumPy function over plain arrays. Axis conventions:
+
+``F``
+    frames of one sample, in time order;
+``n``
+    whiskers in array order, left to right in the image (index 0 .. n-1);
+``R_CM`` (F, n, 3, 3), ``t_CM`` (F, n, 3) in mm
+    the marker poses T_cam_marker of :mod:`scenes.conventions`, NaN where the marker was not
+    seen in that frame.
+
+Stages: :func:`no_contact_pose` (T_CM0, online), :func:`deflection_vectors` (translation of
+T_M0M) and :func:`deflection_mm` (SPEC 3.1), :func:`contact` (3.2), :func:`aggregate` (3.3),
+:func:`candidates` (3.4), :func:`peaks`, :func:`refine` (3.5); :func:`estimate_branches` composes
+them. :func:`foliage_threshold` is the paper's fixed threshold and :func:`online_threshold` infers
+one from the sample itself.
+
+Sign of the marker x axis: a marker's +x points towards increasing whisker index (to the right
+along the arc, the whisking direction). The marker sits behind the pivot, so it moves opposite to
+the tip: a tip pushed left (towards lower indices) by ``theta`` moves its marker by
+``+8 mm * sin(theta)`` along x (:mod:`scenes.array`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
+
+#: Names accepted by :func:`aggregate`.
+AGGREGATIONS = ("integration", "max", "mean", "median", "laplacian", "gaussian")
+
+#: Scale of the median absolute deviation to a standard deviation for normal data.
+MAD_TO_SIGMA = 1.4826
+
+
+class NoContactPose(NamedTuple):
+    """The no-contact pose T_CM0 per marker; unpacks as ``R0, t0, first_frame``."""
+
+    R0: np.ndarray  # (n, 3, 3), NaN for a marker never seen
+    t0: np.ndarray  # (n, 3) mm, NaN for a marker never seen
+    first_frame: np.ndarray  # (n,) int, first frame the marker was seen in; -1 if never
+
+    @property
+    def unseen(self) -> np.ndarray:
+        """(n,) bool: markers never seen, which have no no-contact pose."""
+        return self.first_frame < 0
+
+
+def _seen_poses(R_CM: np.ndarray, t_CM: np.ndarray) -> np.ndarray:
+    """(F, n) bool: frames in which the marker's full pose is finite."""
+    return np.isfinite(t_CM).all(axis=-1) & np.isfinite(R_CM).all(axis=(-2, -1))
+
+
+def _project_to_rotation(M: np.ndarray) -> np.ndarray:
+    """(..., 3, 3) nearest proper rotations (Frobenius norm) to the matrices ``M``."""
+    U, _, Vt = np.linalg.svd(M)
+    D = np.ones(M.shape[:-1])
+    D[..., 2] = np.sign(np.linalg.det(U @ Vt))
+    return (U * D[..., None, :]) @ Vt
+
+
+def no_contact_pose(R_CM: np.ndarray, t_CM: np.ndarray, baseline_frames: int = 10) -> NoContactPose:
+    """T_CM0 per marker from the first ``baseline_frames`` frames in which the marker was seen.
+
+    Online (SPEC 3.1): only the start of the sample is used, assumed contact-free (the
+    whiskers are in free air before the sweep starts); a marker that appears late takes its
+    first frames wherever they are. Translation: the mean of those frames' t_CM. Rotation: the
+    chordal L2 mean, i.e. the mean of the rotation matrices projected back onto SO(3) by SVD
+    (a proper rotation average, exact for rotations symmetric about a common one).
+
+    R_CM (F, n, 3, 3), t_CM (F, n, 3) mm, NaN where unseen. A marker never seen gets NaN and
+    ``first_frame`` -1 (``.unseen``); ValueError if no marker was seen in any frame.
+    """
+    if baseline_frames < 1:
+        raise ValueError(f"baseline_frames must be >= 1, got {baseline_frames}")
+    seen = _seen_poses(R_CM, t_CM)
+    if not seen.any():
+        raise ValueError("no marker seen in any frame: no no-contact frames to take T_CM0 from")
+    baseline = seen & (np.cumsum(seen, axis=0) <= baseline_frames)  # (F, n)
+    count = baseline.sum(axis=0)  # (n,)
+    unseen = count == 0
+    weight = baseline / np.maximum(count, 1)  # (F, n), each seen column sums to 1
+    t0 = np.einsum("fn,fni->ni", weight, np.where(baseline[..., None], t_CM, 0.0))
+    R_mean = np.einsum("fn,fnij->nij", weight, np.where(baseline[..., None, None], R_CM, 0.0))
+    R_mean[unseen] = np.eye(3)  # keeps the SVD finite; replaced by NaN below
+    R0 = _project_to_rotation(R_mean)
+    R0[unseen], t0[unseen] = np.nan, np.nan
+    first_frame = np.where(unseen, -1, np.argmax(seen, axis=0))
+    return NoContactPose(R0, t0, first_frame)
+
+
+def deflection_vectors(t_CM: np.ndarray, R0: np.ndarray, t0: np.ndarray) -> np.ndarray:
+    """(F, n, 3) mm: translation of T_M0M = inv(T_CM0) @ T_CM, i.e. R0^T (t_CM - t0).
+
+    The marker's own rotation R_CM does not enter the translation of T_M0M (SPEC 3.1 uses
+    only the translation), so only t_CM is taken. NaN where the marker was not seen.
+    """
+    return np.einsum("nji,fnj->fni", R0, t_CM - t0)
+
+
+def deflection_mm(vectors: np.ndarray) -> np.ndarray:
+    """(...,) deflection sqrt(x^2 + y^2) in mm of (..., 3) T_M0M translations (SPEC 3.1)."""
+    return np.hypot(vectors[..., 0], vectors[..., 1])
+
+
+def _trailing_mean_of_seen(values: np.ndarray, window: int) -> np.ndarray:
+    """(F, n, k) mean of the last ``window`` seen values (the current one included).
+
+    ``values`` (F, n, k) is NaN where unseen; fewer values are averaged at the start of a
+    column. The result is NaN in unseen frames.
+    """
+    n_frames = values.shape[0]
+    seen = np.isfinite(values).all(axis=-1)  # (F, n)
+    order = np.argsort(~seen, axis=0, kind="stable")  # seen frames first, in time order
+    packed = np.take_along_axis(values, order[..., None], axis=0)
+    padded = np.concatenate([np.full((window - 1,) + values.shape[1:], np.nan), packed])
+    windows = sliding_window_view(padded, window, axis=0)[:n_frames]  # (F, n, k, window)
+    valid = np.isfinite(windows)
+    total = np.where(valid, windows, 0.0).sum(axis=-1)
+    mean = total / np.maximum(valid.sum(axis=-1), 1)  # (F, n, k) per packed position
+    rank = np.maximum(np.cumsum(seen, axis=0) - 1, 0)  # packed position of each frame
+    out = np.take_along_axis(mean, rank[..., None], axis=0)
+    return np.where(seen[..., None], out, np.nan)
+
+
+def contact(vectors: np.ndarray, threshold_mm: float = 1.0, window: int = 4) -> np.ndarray:
+    """(F, n) bool: SPEC 3.2 contact from (F, n, 3) deflection vectors in mm.
+
+    A frame is contact for a whisker when the norm of the mean (x, y) deflection vector over
+    its last ``window`` measurements (this frame and the previous frames in which the marker
+    was seen; fewer at the start of the sample) exceeds ``threshold_mm``. Averaging vectors,
+    not norms, cancels whisker oscillation; the window filters single-frame jerks. A frame in
+    which the marker was not seen is not contact (there is no measurement to count).
+    """
+    if window < 1:
+        raise ValueError(f"window must be >= 1, got {window}")
+    mean_xy = _trailing_mean_of_seen(vectors[..., :2], window)
+    norm = np.hypot(mean_xy[..., 0], mean_xy[..., 1])
+    return np.where(np.isfinite(norm), norm > threshold_mm, False)
+
+
+def _contact_values(deflection: np.ndarray, in_contact: np.ndarray) -> np.ndarray:
+    """(F, n) deflections of contact frames, NaN elsewhere; all 0 for a whisker never in it."""
+    values = np.where(in_contact, deflection, np.nan)
+    values[:, ~in_contact.any(axis=0)] = 0.0
+    return values
+
+
+def max_in_contact(deflection: np.ndarray, in_contact: np.ndarray) -> np.ndarray:
+    """(n,) mm: per whisker the maximum deflection over its contact frames; 0 if none."""
+    return np.nanmax(_contact_values(deflection, in_contact), axis=0)
+
+
+def _integration(deflection: np.ndarray, in_contact: np.ndarray) -> np.ndarray:
+    """SPEC 3.3: per-whisker sums over contact frames, scaled so their max is the max deflection."""
+    sums = np.where(in_contact, deflection, 0.0).sum(axis=0)
+    peak = sums.max()
+    if peak <= 0:
+        return np.zeros_like(sums)
+    return sums * (max_in_contact(deflection, in_contact).max() / peak)
+
+
+def _laplacian(per_whisker: np.ndarray) -> np.ndarray:
+    """Negated discrete 1-D Laplacian 2 m_i - m_(i-1) - m_(i+1) across whiskers, clipped at 0.
+
+    Negated so that a peak stays a positive peak; the edges repeat the end value (a missing
+    neighbour equals the whisker itself), so an end whisker scores m_0 - m_1.
+    """
+    padded = np.pad(per_whisker, 1, mode="edge")
+    return np.clip(2.0 * per_whisker - padded[:-2] - padded[2:], 0.0, None)
+
+
+def _gaussian(per_whisker: np.ndarray, sigma: float = 1.0) -> np.ndarray:
+    """Gaussian smoothing across whiskers (sigma in whiskers, untruncated kernel).
+
+    At the ends the kernel's weights outside the array are dropped and the rest renormalized
+    to sum 1, so a constant curve stays constant.
+    """
+    index = np.arange(per_whisker.size)
+    weights = np.exp(-0.5 * ((index[:, None] - index[None, :]) / sigma) ** 2)
+    return (weights / weights.sum(axis=1, keepdims=True)) @ per_whisker
+
+
+def aggregate(deflection: np.ndarray, in_contact: np.ndarray, method: str) -> np.ndarray:
+    """(n,) curve across whiskers from (F, n) deflections in mm and (F, n) contact (SPEC 3.3).
+
+    ``integration``: per whisker the sum of deflections over contact frames, scaled so that the
+    curve's maximum equals the largest per-whisker maximum deflection in contact (all 0 if no
+    contact at all). ``max``, ``mean``, ``median``: over contact frames, 0 for a whisker never in
+    contact. ``laplacian``: :func:`_laplacian` of the per-whisker max. ``gaussian``:
+    :func:`_gaussian` (sigma 1 whisker) of the per-whisker max.
+    """
+    if method not in AGGREGATIONS:
+        raise ValueError(f"unknown aggregation {method!r}; choose one of {', '.join(AGGREGATIONS)}")
+    if method == "integration":
+        return _integration(deflection, in_contact)
+    if method == "mean":
+        return np.nanmean(_contact_values(deflection, in_contact), axis=0)
+    if method == "median":
+        return np.nanmedian(_contact_values(deflection, in_contact), axis=0)
+    per_whisker_max = max_in_contact(deflection, in_contact)
+    if method == "laplacian":
+        return _laplacian(per_whisker_max)
+    if method == "gaussian":
+        return _gaussian(per_whisker_max)
+    return per_whisker_max
+
+
+def candidates(max_deflection: np.ndarray, curve: np.ndarray, threshold_mm: float) -> np.ndarray:
+    """(n,) bool, SPEC 3.4: the maximum deflection or the curve value exceeds the threshold."""
+    return (max_deflection > threshold_mm) | (curve > threshold_mm)
+
+
+def peaks(curve: np.ndarray, candidate: np.ndarray) -> list[int]:
+    """Whisker indices of the local maxima of ``curve`` that are candidates, left to right.
+
+    Local maxima of the whole curve: a plateau (a run of equal values, possibly one whisker)
+    is a peak when each neighbour it has is strictly lower; an end of the array counts as a
+    missing neighbour, so endpoints can be peaks, but a constant curve has none. A plateau
+    counts once, kept if any of its whiskers is a candidate and reported at its middle whisker
+    (the left one of the two middles for an even length).
+    """
+    curve = np.asarray(curve, dtype=float)
+    starts = np.flatnonzero(np.r_[True, curve[1:] != curve[:-1]])
+    if starts.size < 2:
+        return []
+    ends = np.r_[starts[1:], curve.size] - 1
+    level = curve[starts]
+    higher_than_left = np.r_[True, level[1:] > level[:-1]]
+    higher_than_right = np.r_[level[:-1] > level[1:], True]
+    has_candidate = np.logical_or.reduceat(np.asarray(candidate, bool), starts)
+    keep = higher_than_left & higher_than_right & has_candidate
+    return [int(i) for i in (starts[keep] + ends[keep]) // 2]
+
+
+def contact_x_integrals(vectors: np.ndarray, in_contact: np.ndarray) -> np.ndarray:
+    """(n,) mm: per whisker the sum over contact frames of the marker-frame x deflection."""
+    return np.where(in_contact, vectors[..., 0], 0.0).sum(axis=0)
+
+
+def refine(peak_indices: Sequence[int], x_integrals: np.ndarray) -> list[tuple[int, int]]:
+    """SPEC 3.5: move each peak whisker to the gap between two whiskers; sorted, no duplicates.
+
+    The gap (i, i+1) scores ``d_i = x_integrals[i+1] - x_integrals[i]`` (``np.diff``, right
+    minus left) of the *marker* x integrals. Across a branch the left tip is pushed left and
+    the right tip right (apart); the markers, behind the pivots, move the other way, so the
+    left marker's integral is positive and the right one's negative: d_i < 0. That is SPEC's
+    "negative difference (pushed apart)", read as right minus left in marker coordinates
+    (equivalently left minus right of the tip displacements, which are minus the marker's).
+    A peak whisker p takes the more negative of its gaps (p-1, p) and (p, p+1) that exist
+    (the left one on a tie); it is moved even when neither difference is negative, since a
+    branch always lies between two whiskers.
+    """
+    d = np.diff(np.asarray(x_integrals, dtype=float))
+    gaps = set()
+    for p in peak_indices:
+        options = [i for i in (p - 1, p) if 0 <= i < d.size]
+        left = min(options, key=lambda i: d[i])
+        gaps.add((left, left + 1))
+    return sorted(gaps)
+
+
+@dataclass(frozen=True)
+class BranchEstimate:
+    """The result of :func:`estimate_branches` for one sample (arrays over whiskers n, frames F)."""
+
+    gaps: list[tuple[int, int]]  # refined branch estimates: between whiskers (i, i+1)
+    peaks: list[int]  # peak whiskers of the curve among candidates
+    curve: np.ndarray  # (n,) aggregated curve, mm
+    max_deflection: np.ndarray  # (n,) max deflection in contact, mm
+    candidate: np.ndarray  # (n,) bool
+    x_integrals: np.ndarray  # (n,) sum of marker x deflection over contact frames, mm
+    contact: np.ndarray  # (F, n) bool
+    deflection: np.ndarray  # (F, n) mm, NaN where unseen
+    unseen_markers: list[int]  # whiskers whose marker was never seen
+    threshold_mm: float
+    aggregation: str
+
+
+def estimate_branches(
+    R_CM: np.ndarray,
+    t_CM: np.ndarray,
+    threshold_mm: float,
+    aggregation: str = "integration",
+    baseline_frames: int = 10,
+    contact_threshold_mm: float = 1.0,
+    contact_window: int = 4,
+) -> BranchEstimate:
+    """SPEC 3 from marker poses R_CM (F, n, 3, 3), t_CM (F, n, 3) mm (NaN where unseen)."""
+    pose = no_contact_pose(R_CM, t_CM, baseline_frames)
+    vectors = deflection_vectors(t_CM, pose.R0, pose.t0)
+    deflection = deflection_mm(vectors)
+    in_contact = contact(vectors, contact_threshold_mm, contact_window)
+    curve = aggregate(deflection, in_contact, aggregation)
+    max_deflection = max_in_contact(deflection, in_contact)
+    candidate = candidates(max_deflection, curve, threshold_mm)
+    peak_whiskers = peaks(curve, candidate)
+    x_int = contact_x_integrals(vectors, in_contact)
+    return BranchEstimate(
+        gaps=refine(peak_whiskers, x_int),
+        peaks=peak_whiskers,
+        curve=curve,
+        max_deflection=max_deflection,
+        candidate=candidate,
+        x_integrals=x_int,
+        contact=in_contact,
+        deflection=deflection,
+        unseen_markers=[int(i) for i in np.flatnonzero(pose.unseen)],
+        threshold_mm=float(threshold_mm),
+        aggregation=aggregation,
+    )
+
+
+def foliage_threshold(deflection: np.ndarray, in_contact: np.ndarray) -> float:
+    """The paper's fixed threshold (SPEC 3.4) from a foliage-only sample, in mm.
+
+    The highest deflection in contact of (F, n) ``deflection`` over all whiskers; 0.0 if no
+    whisker was ever in contact. Concatenate the frames of several foliage samples to pool them.
+    """
+    return float(max_in_contact(deflection, in_contact).max())
+
+
+def online_threshold(
+    deflection: np.ndarray,
+    *,
+    k: float = 3.0,
+    min_relative_spread: float = 0.1,
+    floor_mm: float = 1.0,
+) -> float:
+    """A threshold inferred from the sample itself, in mm (the paper's future work).
+
+    Most whiskers touch only foliage; a branch touches one or two neighbours. So across the
+    whiskers, each one's foliage level is mostly foliage, and branch whiskers are high outliers.
+    A whisker's level is its maximum deflection over all frames in which it was seen (whiskers
+    never seen are left out): unlike the maximum in contact it is not censored to 0 for a
+    whisker whose foliage stayed just under the contact filter, which would drag the median
+    to 0 and inflate the MAD. The threshold is an outlier fence with robust statistics, which
+    the outliers barely move (the median breaks down only at half the whiskers)::
+
+        max(floor_mm, median + k * max(1.4826 * MAD, min_relative_spread * median))
+
+    1.4826 * MAD estimates the foliage's standard deviation across whiskers;
+    ``min_relative_spread`` keeps the fence above the median when the foliage is so uniform
+    that the MAD is near 0 (else half of the foliage whiskers would become candidates);
+    ``floor_mm`` (default: SPEC's 1 mm contact threshold) keeps the fence from collapsing when
+    the whiskers barely move. On a foliage-only sample no whisker is expected above the fence,
+    so the sample gives no estimate. It cannot tell a branch from foliage that hits only one or
+    two whiskers much harder than all the others.
+    """
+    seen = np.isfinite(deflection).any(axis=0)
+    if not seen.any():
+        return float(floor_mm)
+    levels = np.nanmax(deflection[:, seen], axis=0)
+    median = float(np.median(levels))
+    mad = float(np.median(np.abs(levels - median)))
+    spread = max(MAD_TO_SIGMA * mad, min_relative_spread * median)
+    return max(float(floor_mm), median + k * spread)
+
+
+def whisker_of_marker(marker_ids: Sequence[int], array_marker_ids: Sequence[int]) -> np.ndarray:
+    """(m,) int whisker index of each marker id; ValueError for an id not on the array."""
+    ids = np.asarray(marker_ids, dtype=int).reshape(-1)
+    matches = ids[:, None] == np.asarray(array_marker_ids, dtype=int)[None, :]
+    missing = ids[~matches.any(axis=1)]
+    if missing.size:
+        raise ValueError(f"marker ids not on the array: {sorted(set(missing.tolist()))}")
+    return np.argmax(matches, axis=1)
