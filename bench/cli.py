@@ -12,6 +12,7 @@ from pathlib import Path
 
 from bench.cli_dataset import OPTION_OF_FIELD as DATASET_OPTION_OF_FIELD
 from bench.cli_dataset import add_dataset_options, cmd_bench_dataset, cmd_dataset
+from bench.cli_pipeline import add_detect_options, cmd_detect
 from bench.dataset import DatasetConfigError
 from bench.detectability import (
     DEFAULT_ALPHAS_DEG,
@@ -204,6 +205,9 @@ def _parser() -> argparse.ArgumentParser:
         help="cells rendered as full 2592x1944 frames for the ratio (default 2)",
     )
     bdet.set_defaults(func=_cmd_bench_detectability)
+    det = sub.add_parser("detect", help="find branches in one video with a pipeline preset")
+    add_detect_options(det)
+    det.set_defaults(func=cmd_detect)
     data = sub.add_parser("dataset", help="generate labeled videos of the array in vegetation")
     add_dataset_options(data)
     data.add_argument("--out", help="dataset folder (default data/default, data/quick)")

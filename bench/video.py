@@ -41,15 +41,19 @@ is recognized as truncated.
 from __future__ import annotations
 
 import itertools
+import os
 import subprocess
 import tempfile
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import IO, NamedTuple
 
-import cv2
-import imageio_ffmpeg
-import numpy as np
+# FFmpeg inside OpenCV prints its own complaints (e.g. "moov atom not found") on stderr; we
+# report unreadable files ourselves, in one line.
+os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")
+import cv2  # noqa: E402
+import imageio_ffmpeg  # noqa: E402
+import numpy as np  # noqa: E402
 
 from bench.atomic import atomic_path
 
@@ -233,9 +237,15 @@ def _open(path: Path) -> cv2.VideoCapture:
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(path)
-    cap = cv2.VideoCapture(str(path), cv2.CAP_FFMPEG)
+    log = cv2.utils.logging
+    level = log.getLogLevel()
+    log.setLogLevel(log.LOG_LEVEL_ERROR)  # a failed open is reported below, in one line
+    try:
+        cap = cv2.VideoCapture(str(path), cv2.CAP_FFMPEG)
+    finally:
+        log.setLogLevel(level)
     if not cap.isOpened():
-        raise ValueError(f"{path}: not a readable video")
+        raise ValueError("not a readable video")
     return cap
 
 
