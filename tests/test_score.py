@@ -1,0 +1,65 @@
+"""Scoring counts planted misses, false positives and errors correctly."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from bench.score import branch_outcome, score_markers
+
+
+@pytest.mark.parametrize(
+    ("estimated", "true", "outcome", "fp", "fn"),
+    [
+        ([(3, 4)], [(3, 4)], "correct", 0, 0),
+        ([(4, 5)], [(3, 4)], "correct", 0, 0),  # within one gap
+        ([(5, 6)], [(3, 4)], "false_positive+false_negative", 1, 1),
+        ([(3, 4), (9, 10)], [(3, 4)], "false_positive", 1, 0),  # planted false positive
+        ([(3, 4)], [(3, 4), (8, 9)], "false_negative", 0, 1),  # planted miss
+        ([], [], "correct", 0, 0),
+        ([(6, 7)], [], "false_positive", 1, 0),
+    ],
+)
+def test_branch_outcomes(estimated, true, outcome, fp, fn) -> None:
+    got = branch_outcome(estimated, true)
+    assert (got["outcome"], got["false_positives"], got["missed"]) == (outcome, fp, fn)
+
+
+def _labels(n_frames: int = 3, n: int = 2) -> pd.DataFrame:
+    rows = []
+    for f in range(n_frames):
+        for m in range(n):
+            row = {"frame": f, "marker_id": m, "visible": True, "deflection_mm": 1.0 * f}
+            row["contact"] = f >= 1
+            for k in range(4):
+                row[f"c{k}_x_px"], row[f"c{k}_y_px"] = 10.0 * k, 5.0 * m
+            for i in range(3):
+                for j in range(3):
+                    row[f"R_CM_{i}{j}"] = float(i == j)
+            row.update(t_CM_x_mm=0.0, t_CM_y_mm=0.0, t_CM_z_mm=200.0)
+            rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def test_marker_scores_count_misses_and_errors() -> None:
+    labels = _labels()
+    det = labels.drop(columns=["visible"]).copy()
+    det = det[~((det["frame"] == 2) & (det["marker_id"] == 1))]  # a planted miss
+    det["c0_x_px"] += 0.4  # one corner off by 0.4 px: mean corner error 0.1 px
+    det["t_CM_x_mm"] += 3.0
+    det["deflection_mm"] += 0.5
+    det.loc[det["frame"] == 0, "contact"] = True  # two planted false contacts
+    s = score_markers(det, labels, foreign_ids=2)
+    assert s["markers_visible"] == 6 and s["markers_found"] == 5
+    assert s["recall"] == pytest.approx(5 / 6)
+    assert s["false_detections"] == 2
+    assert s["corner_err_px"] == pytest.approx(0.1)
+    assert s["trans_err_mm"] == pytest.approx(3.0) and s["rot_err_deg"] == pytest.approx(0.0)
+    assert s["deflection_err_mm"] == pytest.approx(0.5)
+    assert s["contact_recall"] == pytest.approx(1.0)
+    assert s["contact_precision"] == pytest.approx(3 / 5)
+    rotated = det.copy()
+    c, s_ = np.cos(np.radians(10)), np.sin(np.radians(10))
+    rotated["R_CM_00"], rotated["R_CM_01"], rotated["R_CM_10"], rotated["R_CM_11"] = c, -s_, s_, c
+    assert score_markers(rotated, labels)["rot_err_deg"] == pytest.approx(10.0)
