@@ -12,7 +12,7 @@ from pathlib import Path
 
 from bench.cli_dataset import OPTION_OF_FIELD as DATASET_OPTION_OF_FIELD
 from bench.cli_dataset import add_dataset_options, cmd_bench_dataset, cmd_dataset
-from bench.cli_pipeline import add_detect_options, cmd_detect
+from bench.cli_pipeline import add_detect_options, add_score_options, cmd_detect, cmd_score
 from bench.dataset import DatasetConfigError
 from bench.detectability import (
     DEFAULT_ALPHAS_DEG,
@@ -208,6 +208,9 @@ def _parser() -> argparse.ArgumentParser:
     det = sub.add_parser("detect", help="find branches in one video with a pipeline preset")
     add_detect_options(det)
     det.set_defaults(func=cmd_detect)
+    score = sub.add_parser("score", help="score a pipeline preset on a labeled dataset")
+    add_score_options(score)
+    score.set_defaults(func=cmd_score)
     data = sub.add_parser("dataset", help="generate labeled videos of the array in vegetation")
     add_dataset_options(data)
     data.add_argument("--out", help="dataset folder (default data/default, data/quick)")

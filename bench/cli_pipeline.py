@@ -60,3 +60,29 @@ def cmd_detect(args: argparse.Namespace) -> int:
             f"warning: markers of whiskers {record['unseen_markers']} never seen", file=sys.stderr
         )
     return 0
+
+
+def add_score_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("dataset", type=Path, help="dataset folder (made by whiskerbench dataset)")
+    p.add_argument(
+        "--pipeline", default="paper", choices=tuple(PRESETS), help="preset (default paper)"
+    )
+    p.add_argument("--out", type=Path, help="output folder (default <dataset>/scores/<pipeline>)")
+
+
+def cmd_score(args: argparse.Namespace) -> int:
+    from bench.score import score_dataset
+    from pipeline.presets import get_pipeline
+
+    out = args.out or args.dataset / "scores" / args.pipeline
+    try:
+        table = score_dataset(args.dataset, get_pipeline(args.pipeline), out)
+    except (ValueError, FileNotFoundError) as exc:
+        print(f"whiskerbench score: error: {exc}", file=sys.stderr)
+        return 2
+    correct = (table["outcome"] == "correct").mean()
+    print(
+        f"{len(table)} samples: branch outcome correct in {correct:.0%}, marker recall "
+        f"{table['recall'].mean():.3f}; wrote {out}/samples.csv and grid-*.png"
+    )
+    return 0

@@ -12,8 +12,19 @@ true gap; an estimate within one gap of no true branch is a false positive. The 
 
 from __future__ import annotations
 
-import numpy as np
-import pandas as pd
+import json
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import pandas as pd  # noqa: E402
+from tqdm import tqdm  # noqa: E402
+
+from bench.atomic import atomic_path  # noqa: E402
+from pipeline.presets import PipelineConfig  # noqa: E402
 
 CORNERS = [(f"c{k}_x_px", f"c{k}_y_px") for k in range(4)]
 
@@ -88,3 +99,121 @@ def _precision_recall(predicted: pd.Series, truth: pd.Series) -> dict:
         "contact_precision": tp / p.sum() if p.any() else float("nan"),
         "contact_recall": tp / t.sum() if t.any() else float("nan"),
     }
+
+
+# -- a whole dataset ------------------------------------------------------------------------
+
+
+def _samples(dataset: Path) -> list[dict]:
+    records = [json.loads(p.read_text()) for p in sorted(Path(dataset).glob("*/sample.json"))]
+    if not records:
+        raise ValueError(f"{dataset}: no samples (no */sample.json)")
+    return records
+
+
+def _none_twin(record: dict) -> str:
+    """The id of the no-branch sample of the same foliage, distance, protocol and lighting."""
+    parts = record["sample_id"].split("-")
+    parts[2] = "none"
+    return "-".join(parts)
+
+
+def score_dataset(dataset: Path, config: PipelineConfig, out_dir: Path) -> pd.DataFrame:
+    """Run ``config`` on every sample and score it; write ``samples.csv`` and the grids.
+
+    The fixed foliage threshold of a sample is the largest deflection in contact that the
+    same pipeline measures on its no-branch twin (SPEC 3 step 4); without a twin, or for an
+    ``online`` pipeline, it is inferred from the sample itself (column ``threshold_source``).
+    """
+    from bench.detect import run_detect
+    from bench.video import video_info
+    from pipeline.branches import foliage_threshold
+    from scenes.camera import FisheyeCamera
+
+    dataset, out_dir = Path(dataset), Path(out_dir)
+    records = {r["sample_id"]: r for r in _samples(dataset)}
+    order = sorted(records, key=lambda s: records[s]["branches_mm"] != [])  # twins first
+    thresholds: dict[str, float] = {}
+    rows = []
+    for sample_id in tqdm(order, desc=f"score {config.name}", unit="sample"):
+        record, folder = records[sample_id], dataset / sample_id
+        labels = pd.read_parquet(folder / "labels.parquet")
+        if video_info(folder / "video.mp4").frame_count != labels["frame"].nunique():
+            raise ValueError(f"{sample_id}: the labels do not match the video's frame count")
+        camera = FisheyeCamera.from_dict(json.loads((folder / "camera.json").read_text()))
+        threshold = None
+        if config.threshold == "fixed":
+            threshold = thresholds.get(_none_twin(record))
+        result = run_detect(folder / "video.mp4", camera, config, out_dir / sample_id, threshold)
+        detections = pd.read_parquet(out_dir / sample_id / "detections.parquet")
+        if not record["branches_mm"]:
+            thresholds[sample_id] = foliage_threshold(detections["deflection_mm"].to_numpy())
+        estimated = [b["gap"] for b in result["branches"]]
+        rows.append(
+            {
+                "sample_id": sample_id,
+                "foliage": record["foliage"],
+                "distance": record["distance"],
+                "branches": "+".join(f"{b:g}" for b in record["branches_mm"]) or "none",
+                "protocol": record["protocol"]["name"],
+                "lighting": record["lighting"],
+                "threshold_mm": result["threshold_mm"],
+                "threshold_source": "none-sample twin"
+                if threshold is not None
+                else (result["threshold_source"]),
+                "estimated_gaps": json.dumps(estimated),
+                "true_gaps": json.dumps(record["branch_gaps"]),
+                **branch_outcome(estimated, record["branch_gaps"]),
+                **score_markers(detections, labels, result["foreign_ids"]),
+                "frames_per_s": result["frames_per_s"],
+            }
+        )
+    table = pd.DataFrame(rows).sort_values("sample_id").reset_index(drop=True)
+    with atomic_path(out_dir / "samples.csv") as tmp:
+        table.to_csv(tmp, index=False)
+    for (protocol, lighting), part in table.groupby(["protocol", "lighting"]):
+        plot_grid(
+            part,
+            out_dir / f"grid-{protocol}-{lighting}.png",
+            f"{config.name}: {protocol}, {lighting}",
+        )
+    return table
+
+
+def plot_grid(table: pd.DataFrame, path: Path, title: str) -> None:
+    """A results table as an image: rows foliage x distance, columns branch configuration,
+    green = correct, red = not (FP / FN written in the cell)."""
+    rows = sorted({(f, d) for f, d in zip(table["foliage"], table["distance"], strict=True)})
+    cols = sorted(set(table["branches"]), key=lambda b: (b != "none", len(b), b))
+    fig, ax = plt.subplots(figsize=(1.1 * len(cols) + 2, 0.45 * len(rows) + 1.2), dpi=110)
+    for r, (foliage, distance) in enumerate(rows):
+        for c, branches in enumerate(cols):
+            hit = table[
+                (table["foliage"] == foliage)
+                & (table["distance"] == distance)
+                & (table["branches"] == branches)
+            ]
+            if hit.empty:
+                continue
+            outcome = hit["outcome"].iloc[0]
+            ok = outcome == "correct"
+            ax.add_patch(plt.Rectangle((c, r), 1, 1, color="#74c476" if ok else "#fb6a4a"))
+            text = (
+                ""
+                if ok
+                else outcome.replace("false_positive", "FP")
+                .replace("false_negative", "FN")
+                .replace("+", " ")
+            )
+            ax.text(c + 0.5, r + 0.5, text, ha="center", va="center", fontsize=7)
+    ax.set_xlim(0, len(cols))
+    ax.set_ylim(len(rows), 0)
+    ax.set_xticks(np.arange(len(cols)) + 0.5, cols, fontsize=8)
+    ax.set_yticks(np.arange(len(rows)) + 0.5, [f"{f} {d}" for f, d in rows], fontsize=8)
+    ax.set_xlabel("branches (mm)")
+    ax.set_title(title, fontsize=9)
+    ax.tick_params(length=0)
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png")
+    plt.close(fig)

@@ -316,13 +316,18 @@ def estimate_branches(
     )
 
 
-def foliage_threshold(deflection: np.ndarray, in_contact: np.ndarray) -> float:
+def foliage_threshold(deflection: np.ndarray) -> float:
     """The paper's fixed threshold (SPEC 3.4) from a foliage-only sample, in mm.
 
-    The highest deflection in contact of (F, n) ``deflection`` over all whiskers; 0.0 if no
-    whisker was ever in contact. Concatenate the frames of several foliage samples to pool them.
+    "The highest deflection measured when sampling the same foliage with no branch": the
+    largest of (F, n) ``deflection`` over every seen frame and whisker, in contact or not (soft
+    foliage may never pass the 1 mm contact filter, and a threshold of 0 would make every
+    touch a candidate); 0.0 if no marker was seen. Concatenate the frames of several foliage
+    samples to pool them.
     """
-    return float(max_in_contact(deflection, in_contact).max())
+    deflection = np.asarray(deflection, dtype=float)
+    seen = deflection[np.isfinite(deflection)]
+    return float(seen.max()) if seen.size else 0.0
 
 
 def online_threshold(

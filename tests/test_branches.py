@@ -81,7 +81,7 @@ def _branch_sample(*lefts: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
 def fixed_threshold_mm() -> float:
     """The paper's threshold: the highest deflection of the same foliage without branch."""
     estimate = estimate_branches(*_branch_sample(), threshold_mm=np.inf)
-    return foliage_threshold(estimate.deflection, estimate.contact)
+    return foliage_threshold(estimate.deflection)
 
 
 def test_the_scene_moves_the_marker_opposite_to_the_tip():

@@ -14,7 +14,8 @@ from pipeline.presets import PRESETS
 
 @pytest.fixture(scope="module")
 def sample_video(tmp_path_factory, variant):
-    """One rendered sample with a branch at 100 mm (between whiskers 8 and 9)."""
+    """A rendered sample with a branch at 100 mm (between whiskers 8 and 9), and its
+    no-branch twin beside it."""
     if variant.startswith("scalar"):
         pytest.skip("frame rendering needs a JIT variant")
     from bench.dataset import DatasetConfig
@@ -23,14 +24,14 @@ def sample_video(tmp_path_factory, variant):
     config = DatasetConfig(
         foliage=("soft",),
         distances=("intermediate",),
-        branches=((100.0,),),
+        branches=((), (100.0,)),
         protocols=("outdoor",),
         lightings=("lab",),
         passes=1,
     )
     out = tmp_path_factory.mktemp("detect")
     run_dataset(config, out, variant=variant, progress=False)
-    return out / config.samples()[0].sample_id
+    return out / config.samples()[1].sample_id
 
 
 @pytest.mark.parametrize("name", list(PRESETS))
@@ -73,3 +74,15 @@ def test_unreadable_video_and_bad_camera_one_line_exit_2(tmp_path) -> None:
     worse = _run(str(video), "--camera", str(tmp_path / "c.json"))
     assert worse.returncode == 2 and "--camera" in worse.stderr
     assert len(worse.stderr.strip().splitlines()) == 1
+
+
+def test_score_dataset_uses_the_twin_threshold_and_scores_every_sample(sample_video, tmp_path):
+    from bench.score import score_dataset
+
+    table = score_dataset(sample_video.parent, PRESETS["paper"], tmp_path)
+    assert len(table) == 2 and (tmp_path / "samples.csv").exists()
+    assert (tmp_path / "grid-outdoor-lab.png").stat().st_size > 1000
+    branch = table[table["branches"] == "100"].iloc[0]
+    assert branch["threshold_source"] == "none-sample twin"
+    assert branch["outcome"] == "correct" and branch["recall"] > 0.98
+    assert table[table["branches"] == "none"].iloc[0]["false_positives"] == 0
