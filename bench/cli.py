@@ -13,7 +13,6 @@ from pathlib import Path
 from bench.cli_dataset import OPTION_OF_FIELD as DATASET_OPTION_OF_FIELD
 from bench.cli_dataset import add_dataset_options, cmd_bench_dataset, cmd_dataset
 from bench.cli_pipeline import add_detect_options, add_score_options, cmd_detect, cmd_score
-from bench.dataset import DatasetConfigError
 from bench.detectability import (
     DEFAULT_ALPHAS_DEG,
     DEFAULT_PHIS_DEG,
@@ -21,6 +20,7 @@ from bench.detectability import (
     StudyConfig,
     StudyConfigError,
 )
+from scenes.validation import FieldError
 
 QUICK = {"sizes": (8.8, 13.2), "alphas": (0.0, 60.0, 85.0), "phis": (0.0, 30.0, 60.0), "images": 20}
 OPTION_OF_FIELD = {
@@ -238,12 +238,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         return args.func(args)
-    except StudyConfigError as exc:
-        option = OPTION_OF_FIELD.get(exc.field, exc.field)
-        print(f"whiskerbench {args.command}: error: {option}: {exc.detail}", file=sys.stderr)
-        return 2
-    except DatasetConfigError as exc:
-        option = DATASET_OPTION_OF_FIELD.get(exc.field, exc.field)
+    except FieldError as exc:
+        option = {**OPTION_OF_FIELD, **DATASET_OPTION_OF_FIELD}.get(exc.field, exc.field)
         print(f"whiskerbench {args.command}: error: {option}: {exc.detail}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

@@ -119,15 +119,9 @@ def add_dataset_options(p: argparse.ArgumentParser) -> None:
 def dataset_config(args: argparse.Namespace) -> DatasetConfig:
     """The DatasetConfig the options describe (--quick fills what was not given)."""
     quick = QUICK if args.quick else {}
-    try:
-        sampling = FrameSampling(
-            marker_spp=args.spp, subframes=args.subframes, full_frame=args.full_frame
-        )
-    except ValueError as exc:
-        from bench.dataset import DatasetConfigError
-
-        name = str(exc).split("=", 1)[0]
-        raise DatasetConfigError(name, str(exc).split(": ", 1)[1]) from None
+    sampling = FrameSampling(
+        marker_spp=args.spp, subframes=args.subframes, full_frame=args.full_frame
+    )
     return DatasetConfig(
         foliage=args.foliage or quick.get("foliage", DEFAULT_FOLIAGE),
         distances=args.distance or quick.get("distances", DEFAULT_DISTANCES),

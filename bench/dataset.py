@@ -33,6 +33,7 @@ from scenes.array import ArraySpec
 from scenes.camera import FisheyeCamera, default_camera
 from scenes.lighting import get_lighting, lighting_names
 from scenes.motion import MotionSpec, MotionSpecError, get_protocol
+from scenes.validation import FieldError
 from scenes.vegetation import (
     FOLIAGE_KINDS,
     SAMPLING_PENETRATION_MM,
@@ -60,13 +61,8 @@ SEED_NAMES = ("render", "vegetation", "noise")
 APPROACH_CLEARANCE_MM = 15.0
 
 
-class DatasetConfigError(ValueError):
+class DatasetConfigError(FieldError):
     """An invalid dataset option; ``field`` names the config field."""
-
-    def __init__(self, field_name: str, message: str) -> None:
-        super().__init__(f"{field_name}: {message}")
-        self.field = field_name
-        self.detail = message
 
 
 def branches_name(branches_mm: tuple[float, ...]) -> str:
@@ -170,7 +166,7 @@ class DatasetConfig:
                 get_protocol(protocol), **{k: v for k, v in overrides.items() if v is not None}
             )
         except MotionSpecError as exc:
-            raise DatasetConfigError(exc.field, str(exc).split(": ", 1)[1]) from None
+            raise DatasetConfigError(exc.field, exc.detail) from None
 
     def samples(self) -> list[SampleSpec]:
         return [

@@ -31,19 +31,15 @@ from scenes.conventions import marker_corners_marker, rotation_angle_deg, transf
 from scenes.lighting import get_lighting
 from scenes.marker import MarkerSpec, carrier_mesh, check_dictionary
 from scenes.study import MAX_PHI_DEG, study_pose
+from scenes.validation import FieldError
 
 DEFAULT_SIZES_MM = (8.8, 11.0, 13.2, 17.6)
 DEFAULT_ALPHAS_DEG = (0.0, 20.0, 40.0, 60.0, 70.0, 80.0, 85.0, 90.0)
 DEFAULT_PHIS_DEG = tuple(float(p) for p in range(0, 80, 10))
 
 
-class StudyConfigError(ValueError):
+class StudyConfigError(FieldError):
     """A bad study setting; ``field`` names the StudyConfig field it concerns."""
-
-    def __init__(self, field_name: str, message: str) -> None:
-        super().__init__(f"{field_name}: {message}")
-        self.field = field_name
-        self.detail = message
 
 
 @dataclass(frozen=True)

@@ -57,8 +57,10 @@ from scenes.array import (
     rod_mesh,
 )
 from scenes.camera import FisheyeCamera
+from scenes.conventions import marker_corners_marker
 from scenes.lighting import Lighting
 from scenes.marker import marker_albedo
+from scenes.validation import FieldError
 
 ROD_ALBEDO = 0.55  # translucent white polyester, seen as a light grey
 CARRIER_ALBEDO = 0.8
@@ -79,9 +81,9 @@ class FrameSampling:
     def __post_init__(self) -> None:
         for name in ("marker_spp", "background_spp", "subframes"):
             if not (isinstance(getattr(self, name), int) and getattr(self, name) >= 1):
-                raise ValueError(f"{name}={getattr(self, name)!r}: must be an integer >= 1")
+                raise FieldError(name, f"{getattr(self, name)!r}: must be an integer >= 1")
         if self.margin_px < 0:
-            raise ValueError(f"margin_px={self.margin_px}: must be >= 0")
+            raise FieldError("margin_px", f"{self.margin_px}: must be >= 0")
 
 
 def marker_region(
@@ -109,9 +111,8 @@ def marker_region(
         centres = T_cam_whisker(spec)[:, :3, 3]
         points = (centres[:, None, :] + sphere[None]).reshape(-1, 3)
     else:
-        half = spec.marker_spec(spec.marker_ids[0]).carrier_half_mm
-        corners = np.array([[-1.0, 1.0], [1.0, 1.0], [1.0, -1.0], [-1.0, -1.0]]) * half
-        corners = np.column_stack([corners, np.zeros(4)])
+        carrier_mm = 2 * spec.marker_spec(spec.marker_ids[0]).carrier_half_mm
+        corners = marker_corners_marker(carrier_mm)
         T = T_cam_marker(spec, np.asarray(angles_rad, dtype=float).reshape(-1, spec.n_whiskers, 2))
         points = np.einsum("...ij,kj->...ki", T[..., :3, :3], corners) + T[..., None, :3, 3]
         points = points.reshape(-1, 3)
@@ -143,6 +144,7 @@ class ArrayScene:
         self._print_local = np.stack([np.asarray(m.vertices) for m in prints])
         self._carrier_local = np.stack([np.asarray(m.vertices) for m in carriers])
         self._rod_local = np.asarray(rod_mesh(spec).vertices)
+        self._T_cam_whisker = T_cam_whisker(spec)
         atlas = np.concatenate([marker_albedo(spec.marker_spec(i)) for i in spec.marker_ids], 1)
         uv = np.asarray(prints[0].visual.uv, dtype=float)
         print_all = _stack_meshes(prints)
@@ -170,9 +172,8 @@ class ArrayScene:
     def set_angles(self, angles_rad: np.ndarray) -> None:
         """Pose every whisker for deflection angles (n, 2) (scenes.array convention)."""
         markers = T_cam_marker(self.spec, angles_rad)
-        rods = T_cam_whisker(self.spec).copy()
+        rods = self._T_cam_whisker.copy()  # rods turn about their couplings, which stay put
         rods[:, :3, :3] = rods[:, :3, :3] @ deflection_rotation(angles_rad)
-        rods[:, :3, 3] = T_cam_whisker(self.spec)[:, :3, 3]
         rod_local = np.broadcast_to(self._rod_local, (len(rods),) + self._rod_local.shape)
         for key, T, local in (
             ("prints", markers, self._print_local),

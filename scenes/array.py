@@ -30,18 +30,15 @@ import trimesh
 
 from scenes.conventions import make_T
 from scenes.marker import MarkerSpec, carrier_mesh, print_mesh
+from scenes.validation import FieldError
 
 FRAME_PLATE_HEIGHT_MM = 24.0  # the arc plate that carries the couplings, seen behind the markers
 FRAME_PLATE_THICKNESS_MM = 4.0
 FRAME_PLATE_MARGIN_DEG = 4.0  # plate extends this far past the outer whiskers
 
 
-class ArraySpecError(ValueError):
+class ArraySpecError(FieldError):
     """An invalid array parameter; ``field`` names it."""
-
-    def __init__(self, field_name: str, message: str) -> None:
-        super().__init__(f"{field_name}: {message}")
-        self.field = field_name
 
 
 @dataclass(frozen=True)

@@ -19,13 +19,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from scenes.validation import FieldError
 
-class MotionSpecError(ValueError):
+
+class MotionSpecError(FieldError):
     """An invalid motion parameter; ``field`` names it."""
-
-    def __init__(self, field_name: str, message: str) -> None:
-        super().__init__(f"{field_name}: {message}")
-        self.field = field_name
 
 
 @dataclass(frozen=True)
