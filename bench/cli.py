@@ -12,7 +12,16 @@ from pathlib import Path
 
 from bench.cli_dataset import OPTION_OF_FIELD as DATASET_OPTION_OF_FIELD
 from bench.cli_dataset import add_dataset_options, cmd_bench_dataset, cmd_dataset
-from bench.cli_pipeline import add_detect_options, add_score_options, cmd_detect, cmd_score
+from bench.cli_pipeline import (
+    add_bench_pipeline_options,
+    add_compare_options,
+    add_detect_options,
+    add_score_options,
+    cmd_bench_pipeline,
+    cmd_compare,
+    cmd_detect,
+    cmd_score,
+)
 from bench.detectability import (
     DEFAULT_ALPHAS_DEG,
     DEFAULT_PHIS_DEG,
@@ -205,12 +214,22 @@ def _parser() -> argparse.ArgumentParser:
         help="cells rendered as full 2592x1944 frames for the ratio (default 2)",
     )
     bdet.set_defaults(func=_cmd_bench_detectability)
-    det = sub.add_parser("detect", help="find branches in one video with a pipeline preset")
+    det = sub.add_parser("detect", help="find branches in one video with a pipeline variant")
     add_detect_options(det)
     det.set_defaults(func=cmd_detect)
-    score = sub.add_parser("score", help="score a pipeline preset on a labeled dataset")
+    score = sub.add_parser("score", help="score a pipeline variant on a labeled dataset")
     add_score_options(score)
     score.set_defaults(func=cmd_score)
+    compare = sub.add_parser(
+        "compare", help="compare pipeline variants by accuracy and speed; writes a report"
+    )
+    add_compare_options(compare)
+    compare.set_defaults(func=cmd_compare)
+    bpipe = bench_sub.add_parser(
+        "pipeline", help="frames/s of each pipeline on full frames, one core"
+    )
+    add_bench_pipeline_options(bpipe)
+    bpipe.set_defaults(func=cmd_bench_pipeline)
     data = sub.add_parser("dataset", help="generate labeled videos of the array in vegetation")
     add_dataset_options(data)
     data.add_argument("--out", help="dataset folder (default data/default, data/quick)")

@@ -1,4 +1,5 @@
-"""``whiskerbench detect``: options and command (bad input: one line, exit code 2)."""
+"""``whiskerbench detect``, ``score``, ``compare`` and ``bench pipeline``: options and commands
+(bad input: one line, exit code 2)."""
 
 from __future__ import annotations
 
@@ -7,14 +8,38 @@ import json
 import sys
 from pathlib import Path
 
-from pipeline.presets import PRESETS
+from pipeline.presets import CHOICES, PRESETS, PipelineConfig, get_pipeline
+
+VARIANT_HELP = (
+    f"a preset ({', '.join(PRESETS)}), optionally changed by /CHOICE=VALUE parts, e.g. "
+    f"paper/refine=contour/aruco3=on; choices: {', '.join(CHOICES)}"
+)
+
+
+def _pipeline(text: str) -> PipelineConfig:
+    try:
+        return get_pipeline(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def _pipelines(text: str) -> list[PipelineConfig]:
+    names = [n for n in text.split(",") if n]
+    if not names:
+        raise argparse.ArgumentTypeError("--pipelines: needs at least one name")
+    if len(set(names)) != len(names):
+        raise argparse.ArgumentTypeError(f"--pipelines: {text}: a name is repeated")
+    return [_pipeline(n) for n in names]
 
 
 def add_detect_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("video", type=Path, help="video file (synthetic or recorded)")
     p.add_argument("--camera", type=Path, required=True, help="camera.json (model or OpenCV form)")
     p.add_argument(
-        "--pipeline", default="paper", choices=tuple(PRESETS), help="preset (default paper)"
+        "--pipeline",
+        default=PRESETS["paper"],
+        type=_pipeline,
+        help=VARIANT_HELP + " (default paper)",
     )
     p.add_argument(
         "--foliage-threshold",
@@ -27,7 +52,6 @@ def add_detect_options(p: argparse.ArgumentParser) -> None:
 
 def cmd_detect(args: argparse.Namespace) -> int:
     from bench.detect import run_detect
-    from pipeline.presets import get_pipeline
     from scenes.camera import FisheyeCamera
 
     def fail(message: str) -> int:
@@ -42,11 +66,9 @@ def cmd_detect(args: argparse.Namespace) -> int:
         return fail(f"--camera: {args.camera}: {exc}")
     if not args.video.is_file():
         return fail(f"{args.video}: no such file")
-    out = args.out or args.video.with_name(f"{args.video.stem}.{args.pipeline}")
+    out = args.out or args.video.with_name(f"{args.video.stem}.{args.pipeline.folder_name}")
     try:
-        record = run_detect(
-            args.video, camera, get_pipeline(args.pipeline), out, args.foliage_threshold
-        )
+        record = run_detect(args.video, camera, args.pipeline, out, args.foliage_threshold)
     except ValueError as exc:  # unreadable or truncated video, no no-contact frames, ...
         return fail(f"{args.video}: {exc}")
     gaps = ", ".join(f"{b['gap'][0]}-{b['gap'][1]}" for b in record["branches"]) or "none"
@@ -65,18 +87,20 @@ def cmd_detect(args: argparse.Namespace) -> int:
 def add_score_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("dataset", type=Path, help="dataset folder (made by whiskerbench dataset)")
     p.add_argument(
-        "--pipeline", default="paper", choices=tuple(PRESETS), help="preset (default paper)"
+        "--pipeline",
+        default=PRESETS["paper"],
+        type=_pipeline,
+        help=VARIANT_HELP + " (default paper)",
     )
     p.add_argument("--out", type=Path, help="output folder (default <dataset>/scores/<pipeline>)")
 
 
 def cmd_score(args: argparse.Namespace) -> int:
     from bench.score import score_dataset
-    from pipeline.presets import get_pipeline
 
-    out = args.out or args.dataset / "scores" / args.pipeline
+    out = args.out or args.dataset / "scores" / args.pipeline.folder_name
     try:
-        table = score_dataset(args.dataset, get_pipeline(args.pipeline), out)
+        table = score_dataset(args.dataset, args.pipeline, out)
     except (ValueError, FileNotFoundError) as exc:
         print(f"whiskerbench score: error: {exc}", file=sys.stderr)
         return 2
@@ -85,4 +109,78 @@ def cmd_score(args: argparse.Namespace) -> int:
         f"{len(table)} samples: branch outcome correct in {correct:.0%}, marker recall "
         f"{table['recall'].mean():.3f}; wrote {out}/samples.csv and grid-*.png"
     )
+    return 0
+
+
+def add_compare_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("dataset", type=Path, help="dataset folder (made by whiskerbench dataset)")
+    p.add_argument(
+        "--pipelines",
+        type=_pipelines,
+        default=[PRESETS[n] for n in PRESETS],
+        metavar="NAME,...",
+        help="variants to compare, comma-separated; each "
+        + VARIANT_HELP
+        + f" (default {','.join(PRESETS)})",
+    )
+    p.add_argument("--out", type=Path, help="report folder (default <dataset>/compare)")
+    p.add_argument(
+        "--seeds", type=int, default=5, help="seeds per sweep level (default 5, at least 5)"
+    )
+    p.add_argument("--quick", action="store_true", help="a small sweep (2 seeds, few levels)")
+    p.add_argument("--variant", help="Mitsuba variant (default: the fastest available)")
+
+
+def cmd_compare(args: argparse.Namespace) -> int:
+    from bench.compare import run_compare
+    from bench.sweeps import QUICK_SWEEP, SweepConfig
+
+    def fail(message: str) -> int:
+        print(f"whiskerbench compare: error: {message}", file=sys.stderr)
+        return 2
+
+    if not (args.dataset / "manifest.json").is_file() and not any(
+        args.dataset.glob("*/sample.json")
+    ):
+        return fail(f"{args.dataset}: not a dataset folder (no */sample.json)")
+    if args.quick:
+        sweep = QUICK_SWEEP
+    elif args.seeds < 5:
+        return fail(f"--seeds: {args.seeds}: must be >= 5 (use --quick for a smoke run)")
+    else:
+        sweep = SweepConfig(seeds=args.seeds)
+    out = args.out or args.dataset / "compare"
+    try:
+        summary = run_compare(args.dataset, args.pipelines, out, sweep, variant=args.variant)
+    except (ValueError, FileNotFoundError) as exc:
+        return fail(str(exc))
+    for row in summary.itertuples():
+        print(
+            f"{row.pipeline:>24}: {row.fps:7.1f} frames/s, correct {row.correct_rate:.0%}, "
+            f"recall {row.recall:.3f}, deflection error {row.deflection_err_mm:.2f} mm"
+        )
+    print(f"wrote {out}/report.md")
+    return 0
+
+
+def add_bench_pipeline_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--pipelines",
+        type=_pipelines,
+        default=[PRESETS[n] for n in PRESETS],
+        metavar="NAME,...",
+        help=f"variants to time; ratios are against the first (default {','.join(PRESETS)})",
+    )
+    p.add_argument("--frames", type=int, default=30, help="full frames to time (default 30)")
+    p.add_argument("--out", type=Path, help="also write bench.json into this folder")
+    p.add_argument("--variant", help="Mitsuba variant (default: the fastest available)")
+
+
+def cmd_bench_pipeline(args: argparse.Namespace) -> int:
+    from bench.benchmark_pipeline import bench_pipeline
+
+    if args.frames < 2:
+        print(f"whiskerbench bench: error: --frames: {args.frames}: must be >= 2", file=sys.stderr)
+        return 2
+    bench_pipeline(args.pipelines, frames=args.frames, variant=args.variant, out=args.out)
     return 0

@@ -56,6 +56,33 @@ def _seen_poses(R_CM: np.ndarray, t_CM: np.ndarray) -> np.ndarray:
     return np.isfinite(t_CM).all(axis=-1) & np.isfinite(R_CM).all(axis=(-2, -1))
 
 
+def _baseline(seen: np.ndarray, baseline_frames: int) -> np.ndarray:
+    """(F, n) bool: each marker's first ``baseline_frames`` seen frames."""
+    return seen & (np.cumsum(seen, axis=0) <= baseline_frames)
+
+
+def check_baseline(in_contact: np.ndarray, deflection: np.ndarray, baseline_frames: int) -> None:
+    """ValueError if a marker is in contact (F, n) within its baseline frames.
+
+    The online no-contact pose assumes the sample starts in free air. A video that starts with
+    the array moving through foliage has no no-contact frames: its deflections would be measured
+    from a bent pose, a silent wrong answer. Deflections are measured from the baseline's mean,
+    so a marker moving there shows as contact by the contact rule's own measure (which also
+    filters the single-frame pose jumps of unrefined corners). A video that starts in static
+    contact cannot be told from one at rest; only motion gives it away.
+    """
+    seen = np.isfinite(deflection)
+    bad_frames = _baseline(seen, baseline_frames) & in_contact
+    bad = np.flatnonzero(bad_frames.any(axis=0))
+    if bad.size:
+        moved = np.where(bad_frames, deflection, 0.0).max()
+        raise ValueError(
+            f"no no-contact frames at the start: the markers of whiskers {bad.tolist()} are in "
+            f"contact (up to {moved:.1f} mm) within their first {baseline_frames} frames; the "
+            "pipeline needs the whiskers in free air at the start"
+        )
+
+
 def _project_to_rotation(M: np.ndarray) -> np.ndarray:
     """(..., 3, 3) nearest proper rotations (Frobenius norm) to the matrices ``M``."""
     U, _, Vt = np.linalg.svd(M)
@@ -81,7 +108,7 @@ def no_contact_pose(R_CM: np.ndarray, t_CM: np.ndarray, baseline_frames: int = 1
     seen = _seen_poses(R_CM, t_CM)
     if not seen.any():
         raise ValueError("no marker seen in any frame: no no-contact frames to take T_CM0 from")
-    baseline = seen & (np.cumsum(seen, axis=0) <= baseline_frames)  # (F, n)
+    baseline = _baseline(seen, baseline_frames)
     count = baseline.sum(axis=0)  # (n,)
     unseen = count == 0
     weight = baseline / np.maximum(count, 1)  # (F, n), each seen column sums to 1
@@ -291,11 +318,15 @@ def estimate_branches(
     contact_threshold_mm: float = 1.0,
     contact_window: int = 4,
 ) -> BranchEstimate:
-    """SPEC 3 from marker poses R_CM (F, n, 3, 3), t_CM (F, n, 3) mm (NaN where unseen)."""
+    """SPEC 3 from marker poses R_CM (F, n, 3, 3), t_CM (F, n, 3) mm (NaN where unseen).
+
+    ValueError when there are no no-contact frames to start from (:func:`check_baseline`).
+    """
     pose = no_contact_pose(R_CM, t_CM, baseline_frames)
     vectors = deflection_vectors(t_CM, pose.R0, pose.t0)
     deflection = deflection_mm(vectors)
     in_contact = contact(vectors, contact_threshold_mm, contact_window)
+    check_baseline(in_contact, deflection, baseline_frames)
     curve = aggregate(deflection, in_contact, aggregation)
     max_deflection = max_in_contact(deflection, in_contact)
     candidate = candidates(max_deflection, curve, threshold_mm)

@@ -70,16 +70,23 @@ def estimate_pose(
 def _solve(image_points: np.ndarray, size_mm: float, f: float, R_virt_cam: np.ndarray):
     """IPPE_SQUARE on pinhole points (centred, focal ``f``) of a view rotated by R_virt_cam."""
     K = np.array([[f, 0.0, 0.0], [0.0, f, 0.0], [0.0, 0.0, 1.0]])
-    n, rvecs, tvecs, errors = cv2.solvePnPGeneric(
-        marker_corners_marker(size_mm),
-        image_points.reshape(4, 1, 2),
-        K,
-        None,
-        flags=cv2.SOLVEPNP_IPPE_SQUARE,
-    )
-    if n < 1:
-        raise ValueError("solvePnP found no pose")
-    errors = np.asarray(errors, dtype=float).ravel()
+    # IPPE_SQUARE returns NaN for some exactly fronto-parallel squares (integer corners of a
+    # marker facing the view); the general IPPE solves those.
+    for flags in (cv2.SOLVEPNP_IPPE_SQUARE, cv2.SOLVEPNP_IPPE):
+        _, rvecs, tvecs, errors = cv2.solvePnPGeneric(
+            marker_corners_marker(size_mm), image_points.reshape(4, 1, 2), K, None, flags=flags
+        )
+        finite = [
+            k
+            for k in range(len(rvecs))
+            if np.isfinite(rvecs[k]).all() and np.isfinite(tvecs[k]).all()
+        ]
+        if finite:
+            break
+    else:
+        raise ValueError("solvePnP found no finite pose")
+    rvecs, tvecs = [rvecs[k] for k in finite], [tvecs[k] for k in finite]
+    errors = np.asarray(errors, dtype=float).ravel()[finite]
     best = int(np.argmin(errors))
     R_virt_marker = cv2.Rodrigues(rvecs[best])[0]
     T_cam_marker = make_T(R_virt_cam.T @ R_virt_marker, R_virt_cam.T @ tvecs[best].ravel())

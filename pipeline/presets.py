@@ -1,14 +1,20 @@
 """Pipeline variants as data: named choices composed into a config, and the shipped presets.
 
 A variant is a :class:`PipelineConfig`; ``dataclasses.replace(PRESETS["paper"], ...)`` makes
-another. The presets:
+another, and so does a variant name on the command line: a preset followed by ``/choice=value``
+changes, for example ``paper/refine=contour/aruco3=on`` or ``fast/window=3-23-10``
+(:func:`get_pipeline`; the choices are :data:`CHOICES`). The presets:
 
 ``paper``
     SPEC 3 as published: full-frame detection with OpenCV's sub-pixel corners, OpenCV fisheye
     undistortion then IPPE_SQUARE, integration, the fixed foliage threshold.
 ``fast``
-    ROI tracking (the full frame only to (re)acquire), no corner refinement, the virtual-view
-    pose, integration, fixed threshold.
+    ROI tracking (the full frame only to (re)acquire), one adaptive-threshold window of 15 px
+    instead of OpenCV's three (3, 13, 23 px), no corner refinement, the virtual-view pose,
+    integration, fixed threshold. Thresholding is the detector's main cost and one window cuts
+    it about threefold. 15 px was chosen from the ``compare`` sweeps: it fails at the same tilt,
+    lighting, blur and noise as the three windows (a 23 px window lost tilts past 40 deg and
+    ``canopy``; 31 px also ``backlit``).
 ``robust``
     Full frame, this project's edge-line corners, the virtual-view pose (valid past 90 degrees),
     integration, and the threshold inferred from the sample itself when none is given.
@@ -49,6 +55,11 @@ class PipelineConfig:
         if self.baseline_frames < 1:
             raise ValueError(f"baseline_frames={self.baseline_frames}: must be >= 1")
 
+    @property
+    def folder_name(self) -> str:
+        """The name as a folder name: ``paper/refine=contour`` -> ``paper~refine=contour``."""
+        return self.name.replace("/", "~")
+
     def to_json(self) -> dict:
         return dataclasses.asdict(self)
 
@@ -58,7 +69,14 @@ PRESETS: dict[str, PipelineConfig] = {
         "paper", DetectorConfig(corner_refinement="subpix"), Search("full"), "fisheye"
     ),
     "fast": PipelineConfig(
-        "fast", DetectorConfig(corner_refinement="none"), Search("roi"), "virtual"
+        "fast",
+        DetectorConfig(
+            corner_refinement="none",
+            adaptive_thresh_win_size_min=15,
+            adaptive_thresh_win_size_max=15,
+        ),
+        Search("roi"),
+        "virtual",
     ),
     "robust": PipelineConfig(
         "robust",
@@ -73,8 +91,70 @@ PRESETS: dict[str, PipelineConfig] = {
 }
 
 
+def _window(text: str) -> dict:
+    """``MIN[-MAX[-STEP]]`` adaptive-threshold window sizes (px); one size means MIN = MAX."""
+    sizes = [int(v) for v in text.split("-")]
+    if not 1 <= len(sizes) <= 3:
+        raise ValueError("window=MIN[-MAX[-STEP]]")
+    lo, hi, step = (sizes + sizes[:1] + [10])[:3] if len(sizes) == 1 else (sizes + [10])[:3]
+    if lo < 3 or hi < lo or step < 1:
+        raise ValueError("window=MIN[-MAX[-STEP]]: need 3 <= MIN <= MAX and STEP >= 1")
+    return {
+        "adaptive_thresh_win_size_min": lo,
+        "adaptive_thresh_win_size_max": hi,
+        "adaptive_thresh_win_size_step": step,
+    }
+
+
+def _on_off(text: str) -> bool:
+    if text not in ("on", "off"):
+        raise ValueError(f"{text!r}: choose on or off")
+    return text == "on"
+
+
+#: The ``/choice=value`` changes a variant name may make: choice -> (what it sets, parser).
+CHOICES = {
+    "refine": ("detector", lambda v: {"corner_refinement": v}),
+    "aruco3": ("detector", lambda v: {"use_aruco3_detection": _on_off(v)}),
+    "window": ("detector", _window),
+    "constant": ("detector", lambda v: {"adaptive_thresh_constant": float(v)}),
+    "search": ("search", lambda v: {"mode": v}),
+    "margin": ("search", lambda v: {"margin_px": int(v)}),
+    "pose": ("pipeline", lambda v: {"pose_method": v}),
+    "aggregation": ("pipeline", lambda v: {"aggregation": v}),
+    "threshold": ("pipeline", lambda v: {"threshold": v}),
+}
+
+
 def get_pipeline(name: str) -> PipelineConfig:
-    """The preset of that name, or ValueError listing them."""
-    if name not in PRESETS:
-        raise ValueError(f"pipeline {name!r}: unknown; choose from {', '.join(PRESETS)}")
-    return PRESETS[name]
+    """The preset, or the variant a ``PRESET/choice=value/...`` name describes; ValueError
+    (one line, naming the bad part) otherwise."""
+    preset, *changes = name.split("/")
+    if preset not in PRESETS:
+        raise ValueError(
+            f"pipeline {name!r}: unknown preset {preset!r}; choose from {', '.join(PRESETS)}"
+        )
+    config = dataclasses.replace(PRESETS[preset], name=name)
+    for change in changes:
+        key, _, value = change.partition("=")
+        if key not in CHOICES or not value:
+            raise ValueError(
+                f"pipeline {name!r}: {change!r} is not CHOICE=VALUE with CHOICE one of "
+                f"{', '.join(CHOICES)}"
+            )
+        part, parse = CHOICES[key]
+        try:
+            fields = parse(value)
+            if part == "detector":
+                config = dataclasses.replace(
+                    config, detector=dataclasses.replace(config.detector, **fields)
+                )
+            elif part == "search":
+                config = dataclasses.replace(
+                    config, search=dataclasses.replace(config.search, **fields)
+                )
+            else:
+                config = dataclasses.replace(config, **fields)
+        except ValueError as exc:
+            raise ValueError(f"pipeline {name!r}: {change}: {exc}") from None
+    return config

@@ -47,10 +47,10 @@ SEARCHES = ("full", "roi")
 
 @dataclass(frozen=True)
 class Search:
-    """Where to look. ``"full"``: the whole frame, every frame. ``"roi"``: only the box around
-    the markers' last corners (plus ``margin_px``); the whole frame to (re)acquire: on the first
-    frame, after a tracked marker is lost, and every ``reacquire_every`` frames while fewer than
-    all markers are tracked."""
+    """Where to look. ``"full"``: the whole frame (its image circle), every frame. ``"roi"``:
+    only the box around the markers' last corners (plus ``margin_px``); the whole frame to
+    (re)acquire: on the first frame, after a tracked marker is lost, and every
+    ``reacquire_every`` frames while fewer than all markers are tracked."""
 
     mode: str = "full"
     margin_px: int = 48
@@ -77,20 +77,23 @@ def track(
     foreign = failures = n_frames = 0
     last: dict[int, np.ndarray] = {}  # marker id -> corners in the previous frame
     since_full = 0
+    circle = camera.image_circle_box()  # the "full frame": nothing outside it can be seen
     for f, frame in enumerate(frames):
         n_frames += 1
+        if frame.shape[:2] != (camera.height_px, camera.width_px):
+            raise ValueError(
+                f"frame {f} is {frame.shape[1]}x{frame.shape[0]} px but the camera model is "
+                f"{camera.width_px}x{camera.height_px}"
+            )
         box = None
         if search.mode == "roi" and last:
             complete = len(last) == len(whisker_of)
             if complete or since_full < search.reacquire_every:
                 box = _box(np.concatenate(list(last.values())), frame.shape, search.margin_px)
-        if box is None:
-            since_full = 0
-            found = detect_markers(frame, detector, camera=camera)
-        else:
-            since_full += 1
-            x0, y0, x1, y1 = box
-            found = detect_markers(frame[y0:y1, x0:x1], detector, (x0, y0), camera=camera)
+        roi = box is not None
+        since_full = since_full + 1 if roi else 0
+        x0, y0, x1, y1 = box if roi else circle
+        found = detect_markers(frame[y0:y1, x0:x1], detector, (x0, y0), camera=camera)
         seen: dict[int, np.ndarray] = {}
         for det in found:
             if det.marker_id not in whisker_of:
@@ -103,7 +106,7 @@ def track(
                 continue
             seen[det.marker_id] = det.corners_px
             rows.append(_row(f, det.marker_id, whisker_of[det.marker_id], det.corners_px, pose))
-        if box is not None and set(last) - set(seen):
+        if roi and set(last) - set(seen):
             since_full = search.reacquire_every  # a tracked marker was lost: search it all next
         last = seen
     return TrackResult(_table(rows), n_frames, foreign, failures)

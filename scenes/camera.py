@@ -133,6 +133,19 @@ class FisheyeCamera:
         d = np.hypot((uv[..., 0] - self.cx_px) / self.fx_px, (uv[..., 1] - self.cy_px) / self.fy_px)
         return self.undistort(d)
 
+    def image_circle_box(self, margin_px: int = 8) -> tuple[int, int, int, int]:
+        """(x0, y0, x1, y1), x1 and y1 exclusive: the pixels within ``margin_px`` of the image
+        circle (theta <= theta_max), clipped to the image. Nothing the model can see lies outside,
+        so a detector searching only this box finds what it would in the whole frame."""
+        d_max = float(self.distort(np.array(self.theta_max_rad)))
+        rx, ry = self.fx_px * d_max + margin_px, self.fy_px * d_max + margin_px
+        return (
+            max(0, math.floor(self.cx_px - rx)),
+            max(0, math.floor(self.cy_px - ry)),
+            min(self.width_px, math.ceil(self.cx_px + rx) + 1),
+            min(self.height_px, math.ceil(self.cy_px + ry) + 1),
+        )
+
     # --- Interchange
     def to_opencv(self) -> dict[str, Any]:
         """OpenCV fisheye form: K (3x3), D (4,), image size (w, h). Exact below 90 degrees only."""

@@ -460,3 +460,19 @@ def test_whisker_of_marker():
     assert whisker_of_marker([0, 12], SPEC.marker_ids).tolist() == [0, 12]
     with pytest.raises(ValueError, match=r"\[9\]"):
         whisker_of_marker([3, 9], [7, 3, 5])
+
+
+def test_check_baseline_refuses_a_sample_that_starts_in_contact() -> None:
+    from pipeline.branches import check_baseline
+
+    deflection = np.full((40, 13), 0.2)
+    deflection[:3, 5] = np.nan  # a marker seen late: its baseline starts where it is first seen
+    in_contact = np.zeros((40, 13), bool)
+    in_contact[20:30, 4] = True  # after the baseline: contact, not a bad start
+    check_baseline(in_contact, deflection, 10)
+    in_contact[11, 5] = True  # whisker 5's 9th seen frame: inside its baseline
+    deflection[11, 5] = 3.0
+    with pytest.raises(ValueError, match=r"whiskers \[5\] are in contact \(up to 3.0 mm\)"):
+        check_baseline(in_contact, deflection, 10)
+    in_contact[11, 5], in_contact[13, 5] = False, True  # its 11th seen frame: after the baseline
+    check_baseline(in_contact, deflection, 10)

@@ -111,3 +111,26 @@ def test_camera_file_missing_fields_are_named():
 def test_bad_camera_fields_raise(change, field):
     with pytest.raises(ValueError, match=field):
         FisheyeCamera(**{**default_camera().__dict__, **change})
+
+
+@pytest.mark.parametrize("k", [(0.0, 0.0, 0.0, 0.0), (0.02, -0.01, 0.0, 0.0)])
+def test_image_circle_box_holds_every_visible_pixel_and_little_else(k):
+    camera = FisheyeCamera(1200, 900, 300.0, 310.0, 611.3, 447.8, 95.0, "kannala_brandt", k)
+    x0, y0, x1, y1 = camera.image_circle_box(margin_px=0)
+    # independent: project rays at theta_max all around the circle
+    phi = np.linspace(0, 2 * np.pi, 3601)
+    t = np.radians(95.0)
+    edge = camera.project(
+        np.stack(
+            [np.sin(t) * np.cos(phi), np.sin(t) * np.sin(phi), np.cos(t) * np.ones_like(phi)], -1
+        )
+        * 0.999999
+    )
+    assert x0 <= edge[:, 0].min() < x0 + 1 and x1 - 2 < edge[:, 0].max() <= x1
+    assert y0 <= max(edge[:, 1].min(), 0) and min(edge[:, 1].max(), camera.height_px) <= y1
+    ys, xs = np.mgrid[0 : camera.height_px, 0 : camera.width_px]
+    _, valid = camera.unproject(np.stack([xs, ys], -1).astype(float))
+    outside = np.ones_like(valid)
+    outside[y0:y1, x0:x1] = False
+    assert not (valid & outside).any()
+    assert camera.image_circle_box() == (x0 - 8, max(y0 - 8, 0), x1 + 8, min(y1 + 8, 900))

@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import subprocess
 import sys
 
+import numpy as np
 import pandas as pd
 import pytest
 
@@ -13,25 +15,8 @@ from pipeline.presets import PRESETS
 
 
 @pytest.fixture(scope="module")
-def sample_video(tmp_path_factory, variant):
-    """A rendered sample with a branch at 100 mm (between whiskers 8 and 9), and its
-    no-branch twin beside it."""
-    if variant.startswith("scalar"):
-        pytest.skip("frame rendering needs a JIT variant")
-    from bench.dataset import DatasetConfig
-    from bench.generate import run_dataset
-
-    config = DatasetConfig(
-        foliage=("soft",),
-        distances=("intermediate",),
-        branches=((), (100.0,)),
-        protocols=("outdoor",),
-        lightings=("lab",),
-        passes=1,
-    )
-    out = tmp_path_factory.mktemp("detect")
-    run_dataset(config, out, variant=variant, progress=False)
-    return out / config.samples()[1].sample_id
+def sample_video(rendered_pair):
+    return rendered_pair / "soft-intermediate-100-outdoor-lab"
 
 
 @pytest.mark.parametrize("name", list(PRESETS))
@@ -86,3 +71,81 @@ def test_score_dataset_uses_the_twin_threshold_and_scores_every_sample(sample_vi
     assert branch["threshold_source"] == "none-sample twin"
     assert branch["outcome"] == "correct" and branch["recall"] > 0.98
     assert table[table["branches"] == "none"].iloc[0]["false_positives"] == 0
+
+
+def _cut(sample_video, tmp_path, frames) -> tuple:
+    """A copy of the sample's video holding only ``frames`` (with its camera file)."""
+    import itertools
+
+    from bench.video import read_video, write_video
+
+    video = tmp_path / "cut.mp4"
+    chosen = set(frames)
+    source = read_video(sample_video / "video.mp4")
+    write_video(
+        video,
+        (f for i, f in enumerate(itertools.islice(source, max(chosen) + 1)) if i in chosen),
+        15.0,
+    )
+    camera = sample_video / "camera.json"
+    return video, camera
+
+
+def test_a_video_that_starts_in_contact_is_refused(sample_video, tmp_path) -> None:
+    labels = pd.read_parquet(sample_video / "labels.parquet")
+    deflection = labels.pivot(index="frame", columns="whisker", values="deflection_mm").to_numpy()
+    window = 10
+    rise = [
+        (deflection[s : s + window].max(axis=0) - deflection[s : s + window].min(axis=0)).max()
+        for s in range(len(deflection) - window)
+    ]
+    start = int(np.argmax(rise))
+    assert rise[start] > 2.0  # the labels say a whisker moves 2+ mm in those frames
+    video, camera = _cut(sample_video, tmp_path, range(start, start + 30))
+    run = _run(str(video), "--camera", str(camera), "--out", str(tmp_path / "o"))
+    assert run.returncode == 2 and len(run.stderr.strip().splitlines()) == 1
+    assert "no no-contact frames" in run.stderr and not (tmp_path / "o").exists()
+    # the same video from its free-air start is fine
+    fine, _ = _cut(sample_video, tmp_path, range(0, start + 30))
+    assert _run(str(fine), "--camera", str(camera), "--out", str(tmp_path / "p")).returncode == 0
+
+
+def test_a_camera_file_of_another_size_is_refused(sample_video, tmp_path) -> None:
+    from scenes.camera import FisheyeCamera
+
+    camera = FisheyeCamera.from_dict(json.loads((sample_video / "camera.json").read_text()))
+    small = dataclasses.replace(camera, width_px=1296, height_px=972, cx_px=647.5, cy_px=485.5)
+    (tmp_path / "small.json").write_text(json.dumps(small.to_dict()))
+    video, _ = _cut(sample_video, tmp_path, range(12))
+    run = _run(str(video), "--camera", str(tmp_path / "small.json"))
+    assert run.returncode == 2 and len(run.stderr.strip().splitlines()) == 1
+    assert "2592x1944 px but the camera model is 1296x972" in run.stderr
+
+
+def test_a_marker_never_seen_is_reported(sample_video, tmp_path) -> None:
+    """Black out whisker 0's marker in every frame: the estimate goes on and says so."""
+    import itertools
+
+    from bench.video import read_video, write_video
+
+    labels = pd.read_parquet(sample_video / "labels.parquet")
+    first = labels[labels["whisker"] == 0]
+    xs = first[[f"c{k}_x_px" for k in range(4)]].to_numpy()
+    ys = first[[f"c{k}_y_px" for k in range(4)]].to_numpy()
+    x0, x1 = int(np.nanmin(xs)) - 6, int(np.nanmax(xs)) + 7
+    y0, y1 = int(np.nanmin(ys)) - 6, int(np.nanmax(ys)) + 7
+
+    def hidden(frames):
+        for frame in frames:
+            frame = frame.copy()
+            frame[y0:y1, x0:x1] = 0
+            yield frame
+
+    video = tmp_path / "hidden.mp4"
+    write_video(video, hidden(itertools.islice(read_video(sample_video / "video.mp4"), 40)), 15.0)
+    run = _run(
+        str(video), "--camera", str(sample_video / "camera.json"), "--out", str(tmp_path / "o")
+    )
+    assert run.returncode == 0
+    assert "markers of whiskers [0] never seen" in run.stderr
+    assert json.loads((tmp_path / "o" / "branches.json").read_text())["unseen_markers"] == [0]

@@ -46,3 +46,12 @@ def test_fisheye_undistortion_refuses_beyond_90_degrees_virtual_does_not() -> No
 def test_unknown_method() -> None:
     with pytest.raises(ValueError, match="choose from"):
         estimate_pose(_corners(0.0)[1], 13.2, default_camera(), "magic")
+
+
+def test_integer_corners_of_a_facing_marker_give_a_finite_pose():
+    """IPPE_SQUARE returns NaN for these (unrefined corners, marker at alpha 70, phi 0): the
+    pose falls back to the general IPPE instead of returning NaN as if it were a pose."""
+    corners = np.array([[2031, 946], [2071, 945], [2071, 998], [2031, 997]], float)
+    pose = estimate_pose(corners, 13.2, default_camera(), "virtual")
+    assert np.isfinite(pose.T_cam_marker).all()
+    assert abs(np.linalg.norm(pose.T_cam_marker[:3, 3]) - 204.0) < 10.0

@@ -1,0 +1,51 @@
+"""``whiskerbench compare``: the Pareto front, and the report end to end on a rendered pair."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pandas as pd
+
+from bench.compare import pareto_front
+from pipeline.presets import PRESETS, get_pipeline
+
+
+def test_pareto_front_keeps_only_undominated_points():
+    speed = np.array([10.0, 100.0, 50.0, 50.0, 5.0])
+    accuracy = np.array([0.9, 0.5, 0.8, 0.7, 0.95])
+    assert pareto_front(speed, accuracy, True).tolist() == [True, True, True, False, True]
+    error = np.array([0.1, 0.5, 0.2, 0.1, 0.05])  # lower is better: (50, 0.1) beats (10, 0.1)
+    assert pareto_front(speed, error, False).tolist() == [False, True, False, True, True]
+    assert pareto_front(np.array([1.0, 1.0]), np.array([0.5, 0.5]), True).all()  # ties stay
+
+
+def test_compare_writes_a_report_with_every_variant(rendered_pair, tmp_path):
+    from bench.compare import run_compare
+    from bench.sweeps import QUICK_SWEEP
+
+    sweep = dataclasses.replace(
+        QUICK_SWEEP, alphas_deg=(0.0, 90.0), phis_deg=(0.0,), lightings=("lab",), images=3
+    )
+    variants = [PRESETS["paper"], get_pipeline("fast/window=3-23-10")]
+    out = tmp_path / "report"
+    summary = run_compare(rendered_pair, variants, out, sweep, speed_frames=3, speed_seconds=0.0)
+    assert summary["pipeline"].tolist() == ["paper", "fast/window=3-23-10"]
+    assert (summary["fps"] > 0).all() and (summary["samples"] == 2).all()
+    paper = summary.iloc[0]
+    assert paper["correct_rate"] == 1.0 and paper["recall"] > 0.98
+    report = (out / "report.md").read_text()
+    for picture in (
+        "pareto.png",
+        "sweeps.png",
+        "grids/paper-grid-outdoor-lab.png",
+        "grids/fast~window=3-23-10-grid-outdoor-lab.png",
+    ):
+        assert f"]({picture})" in report and (out / picture).stat().st_size > 1000
+    sweeps = pd.read_csv(out / "sweeps.csv")
+    assert set(sweeps["pipeline"]) == {"paper", "fast/window=3-23-10"}
+    assert (sweeps.groupby(["pipeline", "axis", "level"])["seed"].nunique() == 2).all()
+    assert (out / "boundaries.csv").exists() and (out / "summary.csv").exists()
+    # bulk per-sample output stays beside the dataset, not in the report
+    assert (rendered_pair / "scores" / "fast~window=3-23-10" / "samples.csv").exists()
+    assert not list(out.rglob("*.parquet"))

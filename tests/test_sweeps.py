@@ -1,0 +1,231 @@
+"""One-axis sweeps: rows, physics the sweep must show, boundaries, validation, the plot."""
+
+import math
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from bench.sweeps import (
+    AXES,
+    SweepConfig,
+    boundaries,
+    motion_blur,
+    motion_kernel,
+    plot_sweeps,
+    run_sweeps,
+)
+from pipeline.presets import PRESETS
+
+TINY = SweepConfig(
+    alphas_deg=(40.0, 92.0),
+    phis_deg=(0.0, 30.0),
+    lightings=("lab", "sun"),
+    blur_px=(0.0, 8.0),
+    read_noise_e=(3.0, 100.0),
+    seeds=2,
+    images=4,
+    spp=4,
+)
+PIPELINES = [PRESETS["paper"], PRESETS["robust"]]
+
+
+@pytest.fixture(scope="module")
+def table(variant):
+    return run_sweeps(PIPELINES, TINY, variant=variant, progress=False)
+
+
+def rows(table, axis, level, pipeline):
+    return table[
+        (table["axis"] == axis) & (table["level"] == level) & (table["pipeline"] == pipeline)
+    ]
+
+
+def test_one_row_per_axis_level_seed_pipeline(table):
+    assert len(table) == 5 * 2 * 2 * 2
+    keys = table[["axis", "level", "seed", "pipeline"]].drop_duplicates()
+    assert len(keys) == len(table)
+    assert list(dict.fromkeys(table["axis"])) == list(AXES)
+    assert set(table["pipeline"]) == {"paper", "robust"}
+    assert (table["images"] == 4).all()
+    lighting = table[table["axis"] == "lighting"]
+    assert lighting["level_value"].isna().all()
+    assert list(dict.fromkeys(lighting["level"])) == ["lab", "sun"]
+    blur = table[table["axis"] == "blur_px"]
+    assert set(blur["level"]) == {"0", "8"} and set(blur["level_value"]) == {0.0, 8.0}
+    assert table["recall"].between(0, 1).all()
+
+
+def test_recall_is_one_at_the_easy_base_point_for_paper_in_lab(table):
+    lab = rows(table, "lighting", "lab", "paper")
+    assert len(lab) == 2 and (lab["recall"] == 1.0).all()
+    assert (lab["false_ids"] == 0).all()
+    assert (lab["corner_err_px"] < 1.0).all() and (lab["rot_err_deg"] < 10.0).all()
+
+
+def test_fisheye_pose_fails_past_90_degrees_and_the_virtual_view_does_not(table):
+    paper = rows(table, "alpha_deg", "92", "paper")
+    robust = rows(table, "alpha_deg", "92", "robust")
+    assert (paper["recall"] == 1.0).all() and (robust["recall"] == 1.0).all()
+    assert (paper["pose_failures"] == paper["images"]).all()
+    assert paper["rot_err_deg"].isna().all() and paper["trans_err_mm"].isna().all()
+    assert (robust["pose_failures"] == 0).all()
+    assert robust["rot_err_deg"].notna().all() and (robust["rot_err_deg"] < 10.0).all()
+    inside = rows(table, "alpha_deg", "40", "paper")
+    assert (inside["pose_failures"] == 0).all() and inside["rot_err_deg"].notna().all()
+
+
+def test_eight_px_of_motion_blur_loses_the_marker(table):
+    # The base point's modules are about 7 px wide: a smear longer than a module erases the
+    # code (recall 1 without blur, 0 at 8 px for every preset on renders of this size).
+    for pipeline in ("paper", "robust"):
+        sharp = rows(table, "blur_px", "0", pipeline)["recall"].mean()
+        blurred = rows(table, "blur_px", "8", pipeline)["recall"].mean()
+        assert sharp == 1.0
+        assert blurred <= 0.5
+
+
+def test_seeds_differ_and_the_run_is_reproducible(table, variant):
+    base = rows(table, "read_noise_e", "100", "robust")
+    assert base["corner_err_px"].nunique() == 2  # another seed, other images
+    again = run_sweeps(
+        [PRESETS["robust"]],
+        SweepConfig(
+            alphas_deg=(40.0,),
+            phis_deg=(30.0,),
+            lightings=("sun",),
+            blur_px=(0.0,),
+            read_noise_e=(100.0,),
+            seeds=2,
+            images=4,
+            spp=4,
+        ),
+        variant=variant,
+        progress=False,
+    )
+    # The same (point, seed) gives the same images whatever else the sweep contains.
+    mine = rows(again, "read_noise_e", "100", "robust").reset_index(drop=True)
+    pd.testing.assert_frame_equal(mine, base.reset_index(drop=True))
+
+
+@pytest.mark.parametrize(
+    ("length", "expected"),
+    [
+        (0.0, [1.0]),
+        (1.0, [1.0]),
+        (3.0, [1 / 3] * 3),
+        (4.0, [1 / 8, 1 / 4, 1 / 4, 1 / 4, 1 / 8]),  # half taps at the ends: still centred
+        (5.5, [0.25 / 5.5] + [1 / 5.5] * 5 + [0.25 / 5.5]),
+    ],
+)
+def test_motion_kernel_is_a_centred_box_of_the_given_length(length, expected):
+    w = motion_kernel(length)
+    np.testing.assert_allclose(w, expected, rtol=1e-6)
+    assert math.isclose(w.sum(), 1.0, rel_tol=1e-6)
+
+
+def test_motion_blur_smears_along_x_only():
+    radiance = np.zeros((5, 21, 3), np.float32)
+    radiance[2, 10] = 1.0
+    out = motion_blur(radiance, 5.0)
+    np.testing.assert_allclose(out[2, 8:13, 0], 0.2, rtol=1e-6)
+    assert out[2, :8].sum() == 0 and out[2, 13:].sum() == 0
+    assert out[[0, 1, 3, 4]].sum() == 0
+    stack = np.stack([radiance, 2 * radiance])  # leading axes (N canopy images) pass through
+    np.testing.assert_allclose(motion_blur(stack, 5.0)[1], 2 * out, rtol=1e-6)
+
+
+def _hand_table() -> pd.DataFrame:
+    """Two seeds; recall per level chosen so the boundaries are known."""
+    recall = {
+        # axis: {level: (seed 0, seed 1)}
+        "phi_deg": {0: (1.0, 1.0), 20: (1.0, 0.925), 40: (0.5, 0.7), 60: (1.0, 1.0)},
+        "blur_px": {0: (1.0, 1.0), 4: (1.0, 1.0), 8: (0.9, 0.92)},
+        "read_noise_e": {3: (1.0, 1.0), 100: (1.0, 0.95)},
+        "alpha_deg": {0: (0.5, 0.6), 40: (1.0, 1.0)},
+        "lighting": {"lab": (1.0, 1.0), "backlit": (0.9, 0.96), "sun": (0.5, 0.0)},
+    }
+    rows = []
+    for axis, levels in recall.items():
+        for level, per_seed in levels.items():
+            for seed, r in enumerate(per_seed):
+                numeric = axis != "lighting"
+                rows.append(
+                    {
+                        "axis": axis,
+                        "level": f"{level:g}" if numeric else level,
+                        "level_value": float(level) if numeric else math.nan,
+                        "seed": seed,
+                        "pipeline": "p",
+                        "recall": r,
+                    }
+                )
+    return pd.DataFrame(rows)
+
+
+def test_boundaries_of_a_hand_made_table():
+    b = boundaries(_hand_table()).set_index("axis")
+    assert list(b.index) == list(AXES)
+    # phi: means 1, 0.9625, 0.6, 1 -> last ok 20, first fail 40; one seed is below at 20.
+    phi = b.loc["phi_deg"]
+    assert (phi["last_ok"], phi["first_fail"]) == (20.0, 40.0)
+    assert (phi["fail_min"], phi["fail_max"]) == (0.5, 0.7)
+    assert math.isclose(phi["fail_std"], 0.1)
+    assert not phi["stable"] and phi["recovers"]
+    assert phi["failing"] == "40"
+    # blur: all seeds agree on both sides of the crossing 4 -> 8.
+    blur = b.loc["blur_px"]
+    assert (blur["last_ok"], blur["first_fail"]) == (4.0, 8.0)
+    assert blur["stable"] and not blur["recovers"]
+    # noise: never fails; 0.95 counts as detected.
+    noise = b.loc["read_noise_e"]
+    assert noise["last_ok"] == 100.0 and math.isnan(noise["first_fail"])
+    assert noise["stable"] and noise["failing"] == ""
+    # alpha: fails at the first level already, then recovers.
+    alpha = b.loc["alpha_deg"]
+    assert math.isnan(alpha["last_ok"]) and alpha["first_fail"] == 0.0
+    assert alpha["stable"] and alpha["recovers"]
+    # lighting: backlit's mean 0.93 fails, but one of its seeds does not -> unstable.
+    lighting = b.loc["lighting"]
+    assert lighting["failing"] == "backlit,sun"
+    assert not lighting["stable"]
+
+
+@pytest.mark.parametrize(
+    ("change", "field"),
+    [
+        ({"seeds": 0}, "seeds"),
+        ({"images": 0}, "images"),
+        ({"spp": 2.5}, "spp"),
+        ({"alphas_deg": (40.0, 120.0)}, "alphas_deg"),
+        ({"alphas_deg": ()}, "alphas_deg"),
+        ({"phis_deg": (95.0,)}, "phis_deg"),
+        ({"lightings": ("lab", "disco")}, "lightings"),
+        ({"base_lighting": "disco"}, "base_lighting"),
+        ({"blur_px": (-1.0,)}, "blur_px"),
+        ({"read_noise_e": (3.0, float("nan"))}, "read_noise_e"),
+        ({"read_noise_e": (3.0, 3.0)}, "read_noise_e"),
+        ({"size_mm": 0.0}, "size_mm"),
+        ({"distance_mm": -5.0}, "distance_mm"),
+        ({"base_alpha_deg": 100.0}, "base_alpha_deg"),
+        ({"dictionary": "9x9_1"}, "dictionary"),
+    ],
+)
+def test_bad_configs_are_refused_naming_the_field(change, field):
+    with pytest.raises(ValueError, match=f"^{field}: ") as info:
+        SweepConfig(**change)
+    assert "\n" not in str(info.value)
+
+
+def test_run_sweeps_refuses_an_empty_or_ambiguous_pipeline_list():
+    with pytest.raises(ValueError, match="pipelines"):
+        run_sweeps([], TINY, progress=False)
+    with pytest.raises(ValueError, match="distinct"):
+        run_sweeps([PRESETS["paper"], PRESETS["paper"]], TINY, progress=False)
+
+
+def test_plot_is_written(table, tmp_path):
+    path = tmp_path / "plots" / "sweeps.png"
+    plot_sweeps(table, path)
+    assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert [p.name for p in path.parent.iterdir()] == ["sweeps.png"]  # no temporary file left
