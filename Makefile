@@ -3,7 +3,7 @@ VENV ?= .venv
 PYTHON ?= python3
 BIN := $(VENV)/bin
 
-.PHONY: setup llvm study quick test bench lint
+.PHONY: setup llvm study quick test bench bench-pipeline compare lint
 
 setup: $(VENV)/.installed llvm
 
@@ -36,6 +36,21 @@ test: setup
 
 bench: setup
 	$(BIN)/whiskerbench bench detectability
+
+# The comparison's dataset: 24 outdoor samples (soft strips and dense leaves, 3 distances, no /
+# one / two branches), about 5 min to render; reruns skip what is done.
+COMPARE_DATASET ?= data/compare
+COMPARE_PIPELINES ?= paper,fast,robust,naive,paper/aruco3=on,paper/refine=contour,fast/search=full
+
+compare: setup
+	$(BIN)/whiskerbench dataset --protocol outdoor --foliage soft,dense \
+	  --distance far,intermediate,close --branches none,0,50,0+100 --passes 1 \
+	  --out $(COMPARE_DATASET)
+	$(BIN)/whiskerbench compare $(COMPARE_DATASET) --pipelines $(COMPARE_PIPELINES) \
+	  --out results/compare/default
+
+bench-pipeline: setup
+	$(BIN)/whiskerbench bench pipeline --out results/compare/default
 
 lint: setup
 	$(BIN)/ruff check .

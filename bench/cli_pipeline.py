@@ -105,10 +105,13 @@ def cmd_score(args: argparse.Namespace) -> int:
         print(f"whiskerbench score: error: {exc}", file=sys.stderr)
         return 2
     correct = (table["outcome"] == "correct").mean()
+    refused = table[table["outcome"] == "refused"]
     print(
         f"{len(table)} samples: branch outcome correct in {correct:.0%}, marker recall "
         f"{table['recall'].mean():.3f}; wrote {out}/samples.csv and grid-*.png"
     )
+    for row in refused.itertuples():
+        print(f"warning: {row.sample_id} refused: {row.refused_reason}", file=sys.stderr)
     return 0
 
 

@@ -51,6 +51,7 @@ def summarize(name: str, table: pd.DataFrame) -> dict:
         "correct_rate": float((table["outcome"] == "correct").mean()),
         "false_positive_samples": int(table["outcome"].str.contains("false_positive").sum()),
         "false_negative_samples": int(table["outcome"].str.contains("false_negative").sum()),
+        "refused_samples": int((table["outcome"] == "refused").sum()),
         "recall": float(table["markers_found"].sum() / table["markers_visible"].sum()),
         "false_detections": int(table["false_detections"].sum()),
         "deflection_err_mm": float(table["deflection_err_mm"].median()),

@@ -121,13 +121,15 @@ def _none_twin(record: dict) -> str:
 def score_dataset(dataset: Path, config: PipelineConfig, out_dir: Path) -> pd.DataFrame:
     """Run ``config`` on every sample and score it; write ``samples.csv`` and the grids.
 
-    The fixed foliage threshold of a sample is the largest deflection in contact that the
-    same pipeline measures on its no-branch twin (SPEC 3 step 4); without a twin, or for an
-    ``online`` pipeline, it is inferred from the sample itself (column ``threshold_source``).
+    A sample the pipeline refuses (no no-contact frames at its start) gets the outcome
+    ``refused`` and its reason, not scores. The fixed foliage threshold of a sample is the
+    highest deflection that the same pipeline measures on its no-branch twin (SPEC 3 step 4);
+    without a twin, or for an ``online`` pipeline, it is inferred from the sample itself
+    (column ``threshold_source``).
     """
     from bench.detect import run_detect
     from bench.video import video_info
-    from pipeline.branches import foliage_threshold
+    from pipeline.branches import NoBaselineError, foliage_threshold
     from scenes.camera import FisheyeCamera
 
     dataset, out_dir = Path(dataset), Path(out_dir)
@@ -144,25 +146,35 @@ def score_dataset(dataset: Path, config: PipelineConfig, out_dir: Path) -> pd.Da
         threshold = None
         if config.threshold == "fixed":
             threshold = thresholds.get(_none_twin(record))
-        result = run_detect(folder / "video.mp4", camera, config, out_dir / sample_id, threshold)
+        common = {
+            "sample_id": sample_id,
+            "foliage": record["foliage"],
+            "distance": record["distance"],
+            "branches": "+".join(f"{b:g}" for b in record["branches_mm"]) or "none",
+            "protocol": record["protocol"]["name"],
+            "lighting": record["lighting"],
+            "true_gaps": json.dumps(record["branch_gaps"]),
+        }
+        try:
+            result = run_detect(
+                folder / "video.mp4", camera, config, out_dir / sample_id, threshold
+            )
+        except NoBaselineError as exc:  # flagged and reported, never scored as an answer
+            rows.append({**common, "outcome": "refused", "refused_reason": str(exc)})
+            continue
         detections = pd.read_parquet(out_dir / sample_id / "detections.parquet")
         if not record["branches_mm"]:
             thresholds[sample_id] = foliage_threshold(detections["deflection_mm"].to_numpy())
         estimated = [b["gap"] for b in result["branches"]]
         rows.append(
             {
-                "sample_id": sample_id,
-                "foliage": record["foliage"],
-                "distance": record["distance"],
-                "branches": "+".join(f"{b:g}" for b in record["branches_mm"]) or "none",
-                "protocol": record["protocol"]["name"],
-                "lighting": record["lighting"],
+                **common,
                 "threshold_mm": result["threshold_mm"],
                 "threshold_source": "none-sample twin"
                 if threshold is not None
                 else (result["threshold_source"]),
                 "estimated_gaps": json.dumps(estimated),
-                "true_gaps": json.dumps(record["branch_gaps"]),
+                "unseen_markers": json.dumps(result["unseen_markers"]),
                 **branch_outcome(estimated, record["branch_gaps"]),
                 **score_markers(detections, labels, result["foreign_ids"]),
                 "frames_per_s": result["frames_per_s"],
@@ -182,7 +194,7 @@ def score_dataset(dataset: Path, config: PipelineConfig, out_dir: Path) -> pd.Da
 
 def plot_grid(table: pd.DataFrame, path: Path, title: str) -> None:
     """A results table as an image: rows foliage x distance, columns branch configuration,
-    green = correct, red = not (FP / FN written in the cell)."""
+    green = correct, red = not (FP / FN written in the cell), grey = refused by the pipeline."""
     rows = sorted({(f, d) for f, d in zip(table["foliage"], table["distance"], strict=True)})
     cols = sorted(set(table["branches"]), key=lambda b: (b != "none", len(b), b))
     fig, ax = plt.subplots(figsize=(1.1 * len(cols) + 2, 0.45 * len(rows) + 1.2), dpi=110)
@@ -197,7 +209,8 @@ def plot_grid(table: pd.DataFrame, path: Path, title: str) -> None:
                 continue
             outcome = hit["outcome"].iloc[0]
             ok = outcome == "correct"
-            ax.add_patch(plt.Rectangle((c, r), 1, 1, color="#74c476" if ok else "#fb6a4a"))
+            colour = "#74c476" if ok else "#bdbdbd" if outcome == "refused" else "#fb6a4a"
+            ax.add_patch(plt.Rectangle((c, r), 1, 1, color=colour))
             text = (
                 ""
                 if ok

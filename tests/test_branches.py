@@ -462,17 +462,19 @@ def test_whisker_of_marker():
         whisker_of_marker([3, 9], [7, 3, 5])
 
 
-def test_check_baseline_refuses_a_sample_that_starts_in_contact() -> None:
+def test_check_baseline_refuses_a_sample_that_starts_moving() -> None:
     from pipeline.branches import check_baseline
 
-    deflection = np.full((40, 13), 0.2)
-    deflection[:3, 5] = np.nan  # a marker seen late: its baseline starts where it is first seen
-    in_contact = np.zeros((40, 13), bool)
-    in_contact[20:30, 4] = True  # after the baseline: contact, not a bad start
-    check_baseline(in_contact, deflection, 10)
-    in_contact[11, 5] = True  # whisker 5's 9th seen frame: inside its baseline
-    deflection[11, 5] = 3.0
-    with pytest.raises(ValueError, match=r"whiskers \[5\] are in contact \(up to 3.0 mm\)"):
-        check_baseline(in_contact, deflection, 10)
-    in_contact[11, 5], in_contact[13, 5] = False, True  # its 11th seen frame: after the baseline
-    check_baseline(in_contact, deflection, 10)
+    rng = np.random.default_rng(0)
+    vectors = rng.normal(0.0, 0.3, (40, 13, 3))  # free air: pose noise only
+    vectors[4, 2] = [2.0, 0.0, 0.0]  # a single-frame jump of unrefined corners
+    vectors[:3, 5] = np.nan  # a marker seen late: its baseline starts where it is first seen
+    vectors[20:30, 4, 0] += 5.0  # after the baseline: contact, not a bad start
+    check_baseline(vectors, 10, 1.0)
+    pushed = vectors.copy()
+    pushed[3:13, 5, 1] += np.linspace(0.0, 2.5, 10)  # whisker 5 pushed in its baseline frames
+    with pytest.raises(ValueError, match=r"whiskers \[5\] move 1\.\d mm across their first 10"):
+        check_baseline(pushed, 10, 1.0)
+    late = vectors.copy()
+    late[13:23, 5, 1] += np.linspace(0.0, 2.5, 10)  # the same push, after its baseline
+    check_baseline(late, 10, 1.0)

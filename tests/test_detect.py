@@ -149,3 +149,28 @@ def test_a_marker_never_seen_is_reported(sample_video, tmp_path) -> None:
     assert run.returncode == 0
     assert "markers of whiskers [0] never seen" in run.stderr
     assert json.loads((tmp_path / "o" / "branches.json").read_text())["unseen_markers"] == [0]
+
+
+def test_score_flags_a_sample_without_no_contact_frames(sample_video, tmp_path) -> None:
+    """A sample cut to start while a whisker is pushed is refused and reported, not scored."""
+    import shutil
+
+    from bench.score import score_dataset
+
+    dataset = tmp_path / "data"
+    shutil.copytree(sample_video.parent, dataset, ignore=shutil.ignore_patterns("scores"))
+    folder = dataset / sample_video.name
+    labels = pd.read_parquet(folder / "labels.parquet")
+    deflection = labels.pivot(index="frame", columns="whisker", values="deflection_mm").to_numpy()
+    rise = [np.ptp(deflection[s : s + 10], axis=0).max() for s in range(len(deflection) - 10)]
+    start = int(np.argmax(rise))
+    video, _ = _cut(sample_video, tmp_path, range(start, len(deflection)))
+    shutil.copy(video, folder / "video.mp4")
+    cut = labels[labels["frame"] >= start].copy()
+    cut["frame"] -= start
+    cut.to_parquet(folder / "labels.parquet")
+    table = score_dataset(dataset, PRESETS["paper"], tmp_path / "scores")
+    refused = table[table["sample_id"] == sample_video.name].iloc[0]
+    assert refused["outcome"] == "refused"
+    assert "no no-contact frames" in refused["refused_reason"]
+    assert table[table["branches"] == "none"].iloc[0]["outcome"] == "correct"
