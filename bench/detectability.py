@@ -168,6 +168,20 @@ def renderer_for(config: StudyConfig, lighting_name: str):
     return _STATE[key]
 
 
+def carrier_outline(T_cam_marker: np.ndarray, spec: MarkerSpec, steps: int = 9) -> np.ndarray:
+    """Points along every segment between two carrier vertices, camera frame: (M, 3) mm.
+
+    A crop frames their projections. The vertices alone are not enough: their projections are
+    NaN beyond theta_max, and from alpha 90 deg the carrier's far vertices can be past 95 deg
+    while part of the marker is not, so a crop framing the vertices would cut the marker.
+    Points along the edges keep the visible part of the carrier framed up to the image circle.
+    """
+    v = transform_points(T_cam_marker, carrier_mesh(spec).vertices)
+    i, j = np.triu_indices(len(v), k=1)
+    t = np.linspace(0.0, 1.0, steps)[:, None, None]
+    return (v[i][None] + t * (v[j] - v[i])[None]).reshape(-1, 3)
+
+
 def cell_images(config: StudyConfig, cell: Cell) -> tuple[np.ndarray, object, dict]:
     """Render one cell's clean crop once and draw its N camera images: (N, H, W) uint8."""
     from renderers.fisheye import canopy_visibility
@@ -176,8 +190,7 @@ def cell_images(config: StudyConfig, cell: Cell) -> tuple[np.ndarray, object, di
     camera, lighting = config.camera, get_lighting(cell.lighting)
     T_cam_marker = study_pose(cell.alpha_deg, cell.phi_deg, config.distance_mm)
     spec = MarkerSpec(config.dictionary, config.marker_id, cell.size_mm)
-    extent = transform_points(T_cam_marker, carrier_mesh(spec).vertices)
-    window = Window.around(camera.project(extent), camera)
+    window = Window.around(camera.project(carrier_outline(T_cam_marker, spec)), camera)
     renderer, canopy = renderer_for(config, cell.lighting)
     renderer.scene.set_pose(T_cam_marker, cell.size_mm)
     render_seed, noise_seed = cell.seed_sequence(config.seed).generate_state(2)

@@ -68,6 +68,7 @@ from bench.detectability import (  # noqa: E402
     Cell,
     StudyConfig,
     camera_images,
+    carrier_outline,
     init_worker,
     renderer_for,
 )
@@ -82,7 +83,7 @@ from scenes.conventions import (  # noqa: E402
     transform_points,
 )
 from scenes.lighting import get_lighting  # noqa: E402
-from scenes.marker import MarkerSpec, carrier_mesh, check_dictionary  # noqa: E402
+from scenes.marker import MarkerSpec, check_dictionary  # noqa: E402
 from scenes.study import MAX_PHI_DEG, study_pose  # noqa: E402
 from scenes.validation import FieldError  # noqa: E402
 
@@ -338,27 +339,13 @@ def _study(config: SweepConfig, read_noise_e: float | None = None) -> StudyConfi
     )
 
 
-def _carrier_outline(T_cam_marker: np.ndarray, spec: MarkerSpec, steps: int = 9) -> np.ndarray:
-    """Points along every segment between two carrier vertices, camera frame: (M, 3) mm.
-
-    The crop frames their projections. The study frames the vertices alone, whose projections
-    are NaN beyond theta_max: at alpha 92 deg the carrier's far vertices are past 95 deg while
-    the marker itself is not, and the crop would cut the marker in half. Points along the edges
-    keep the visible part of the carrier framed up to the image circle.
-    """
-    v = transform_points(T_cam_marker, carrier_mesh(spec).vertices)
-    i, j = np.triu_indices(len(v), k=1)
-    t = np.linspace(0.0, 1.0, steps)[:, None, None]
-    return (v[i][None] + t * (v[j] - v[i])[None]).reshape(-1, 3)
-
-
 def clean_render(config: SweepConfig, point: SweepPoint, seed: int) -> dict:
     """The clean linear radiance of one point's crop, before any camera response.
 
     :func:`bench.detectability.cell_images` goes from the render straight to camera images; a
     sweep needs the radiance in between (motion blur acts on it) and a camera response of its
     own (the noise axis), so this composes the same steps: the study's pose and crop (with
-    ``point.margin_px``, framed by :func:`_carrier_outline`), its cached renderer and its seeds
+    ``point.margin_px``, framed by :func:`carrier_outline`), its cached renderer and its seeds
     (:meth:`Cell.seed_sequence`).
 
     Returns ``window``, ``rendered``, ``radiance`` ((H, W, 3), or (N, H, W, 3) under a canopy,
@@ -373,7 +360,7 @@ def clean_render(config: SweepConfig, point: SweepPoint, seed: int) -> dict:
     T_cam_marker = study_pose(point.alpha_deg, point.phi_deg, config.distance_mm)
     spec = MarkerSpec(config.dictionary, config.marker_id, config.size_mm)
     window = Window.around(
-        camera.project(_carrier_outline(T_cam_marker, spec)), camera, margin_px=point.margin_px
+        camera.project(carrier_outline(T_cam_marker, spec)), camera, margin_px=point.margin_px
     )
     renderer, canopy = renderer_for(study, point.lighting)
     renderer.scene.set_pose(T_cam_marker, config.size_mm)

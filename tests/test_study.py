@@ -114,3 +114,29 @@ def test_save_images(variant, tmp_path):
     run_study(config, out, save_images=True, progress=False)
     images = pd.read_parquet(out / "images.parquet")
     assert all((out / p).stat().st_size > 0 for p in images.image_path)
+
+
+def test_crop_frames_every_visible_marker_corner_even_past_90_degrees():
+    """At alpha 92 the carrier's far vertices are past theta_max while the marker's corners are
+    not: framed by its vertices alone the crop missed corners; framed by points along its
+    edges it holds them all."""
+    import numpy as np
+
+    from bench.detectability import carrier_outline
+    from renderers.window import Window
+    from scenes.camera import default_camera
+    from scenes.conventions import marker_corners_marker, transform_points
+    from scenes.marker import MarkerSpec, carrier_mesh
+    from scenes.study import study_pose
+
+    camera, spec = default_camera(), MarkerSpec("4x4_50", 0, 13.2)
+    T = study_pose(92.0, 0.0, 200.0)
+    vertices = camera.project(transform_points(T, carrier_mesh(spec).vertices))
+    assert np.isnan(vertices).any()  # the case the outline is for
+    window = Window.around(camera.project(carrier_outline(T, spec)), camera)
+    corners = camera.project(transform_points(T, marker_corners_marker(13.2)))
+    assert np.isfinite(corners).all()
+    by_vertices = Window.around(vertices, camera)
+    assert (corners[:, 0] >= by_vertices.x0 + by_vertices.width).any()  # the old crop cut it
+    assert (corners[:, 0] >= window.x0).all() and (corners[:, 0] < window.x0 + window.width).all()
+    assert (corners[:, 1] >= window.y0).all() and (corners[:, 1] < window.y0 + window.height).all()
