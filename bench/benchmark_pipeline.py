@@ -24,6 +24,7 @@ from bench.atomic import write_json
 from bench.benchmark_dataset import pick_sample
 from bench.dataset import DatasetConfig, SampleFrames, simulate_sample
 from bench.detectability import init_worker
+from bench.score import score_markers
 from pipeline.presets import PipelineConfig
 from pipeline.track import MarkerSet, track
 
@@ -87,13 +88,6 @@ def time_pipeline(
     return best, result.detections
 
 
-def recall(detections: pd.DataFrame, labels: pd.DataFrame) -> float:
-    """Visible markers found (right id, any corners) over visible markers."""
-    visible = labels[labels["visible"]]
-    found = visible.merge(detections[["frame", "marker_id"]], on=["frame", "marker_id"])
-    return len(found) / len(visible) if len(visible) else float("nan")
-
-
 def bench_pipeline(
     pipelines: list[PipelineConfig],
     config: DatasetConfig = SPEED_SAMPLE,
@@ -111,9 +105,8 @@ def bench_pipeline(
         rows = []
         for pipeline in pipelines:
             fps, detections = time_pipeline(images, config, pipeline, min_seconds)
-            rows.append(
-                {"pipeline": pipeline.name, "fps": fps, "recall": recall(detections, labels)}
-            )
+            recall = score_markers(detections, labels)["recall"]
+            rows.append({"pipeline": pipeline.name, "fps": fps, "recall": recall})
     finally:
         cv2.setNumThreads(threads)
     base = rows[0]

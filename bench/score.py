@@ -78,7 +78,7 @@ def score_markers(detections: pd.DataFrame, labels: pd.DataFrame, foreign_ids: i
         "rot_err_deg": _median(rot_err),
         "trans_err_mm": _median(trans_err),
     }
-    if "deflection_mm" in matched:
+    if "deflection_mm" in detections:  # a tracking-only table has no deflection to score
         out["deflection_err_mm"] = _median(
             np.abs(matched["deflection_mm"] - matched["deflection_mm_gt"])
         )

@@ -63,3 +63,11 @@ def test_marker_scores_count_misses_and_errors() -> None:
     c, s_ = np.cos(np.radians(10)), np.sin(np.radians(10))
     rotated["R_CM_00"], rotated["R_CM_01"], rotated["R_CM_10"], rotated["R_CM_11"] = c, -s_, s_, c
     assert score_markers(rotated, labels)["rot_err_deg"] == pytest.approx(10.0)
+
+
+def test_a_tracking_only_table_is_scored_without_deflection() -> None:
+    """Detections straight from tracking (no deflection, no contact) against full labels."""
+    labels = _labels()
+    det = labels.drop(columns=["visible", "deflection_mm", "contact"]).iloc[1:]
+    s = score_markers(det, labels)
+    assert s["recall"] == pytest.approx(5 / 6) and "deflection_err_mm" not in s
