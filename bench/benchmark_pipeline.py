@@ -14,6 +14,8 @@ from __future__ import annotations
 import dataclasses
 import os
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import cv2
@@ -63,6 +65,17 @@ def full_frames(config: DatasetConfig, frames: int) -> tuple[list[np.ndarray], p
     return images, labels
 
 
+@contextmanager
+def one_opencv_thread() -> Iterator[None]:
+    """OpenCV on one thread inside the block (single-core speed), as it was after it."""
+    threads = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    try:
+        yield
+    finally:
+        cv2.setNumThreads(threads)
+
+
 def time_pipeline(
     images: list[np.ndarray],
     config: DatasetConfig,
@@ -99,16 +112,12 @@ def bench_pipeline(
     """Print and return frames/s, ratio to the first pipeline, and recall, per pipeline."""
     init_worker(variant)
     images, labels = full_frames(config, frames)
-    threads = cv2.getNumThreads()
-    cv2.setNumThreads(1)
-    try:
+    with one_opencv_thread():
         rows = []
         for pipeline in pipelines:
             fps, detections = time_pipeline(images, config, pipeline, min_seconds)
             recall = score_markers(detections, labels)["recall"]
             rows.append({"pipeline": pipeline.name, "fps": fps, "recall": recall})
-    finally:
-        cv2.setNumThreads(threads)
     base = rows[0]
     h, w = images[0].shape
     print(f"{len(images)} frames of {w}x{h} px, one core; ratio against {base['pipeline']}")

@@ -142,10 +142,6 @@ def cmd_compare(args: argparse.Namespace) -> int:
         print(f"whiskerbench compare: error: {message}", file=sys.stderr)
         return 2
 
-    if not (args.dataset / "manifest.json").is_file() and not any(
-        args.dataset.glob("*/sample.json")
-    ):
-        return fail(f"{args.dataset}: not a dataset folder (no */sample.json)")
     if args.quick:
         sweep = QUICK_SWEEP
     elif args.seeds < 5:

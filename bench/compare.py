@@ -31,7 +31,12 @@ import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
 from bench.atomic import atomic_path, write_bytes  # noqa: E402
-from bench.benchmark_pipeline import SPEED_SAMPLE, full_frames, time_pipeline  # noqa: E402
+from bench.benchmark_pipeline import (  # noqa: E402
+    SPEED_SAMPLE,
+    full_frames,
+    one_opencv_thread,
+    time_pipeline,
+)
 from bench.detectability import init_worker  # noqa: E402
 from pipeline.presets import PipelineConfig  # noqa: E402
 
@@ -110,19 +115,18 @@ def run_compare(
 
     Speed: the best of repeats over ``speed_frames`` full frames, run for ``speed_seconds``.
     """
-    from bench.score import score_dataset
+    from bench.score import sample_records, score_dataset
     from bench.sweeps import SweepConfig, boundaries, plot_sweeps, run_sweeps
 
     dataset, out_dir = Path(dataset), Path(out_dir)
     names = [p.name for p in pipelines]
     if len(set(names)) != len(names) or not names:
         raise ValueError(f"--pipelines: need distinct names, got {names}")
+    sample_records(dataset)  # a folder without samples fails now, not after the speed frames
     chosen = init_worker(variant)
     t_start = time.perf_counter()
-    threads = cv2.getNumThreads()
-    cv2.setNumThreads(1)
-    try:
-        images, labels = full_frames(SPEED_SAMPLE, speed_frames)
+    with one_opencv_thread():
+        images, _ = full_frames(SPEED_SAMPLE, speed_frames)
         rows, tables = [], {}
         for pipeline in pipelines:
             fps, _ = time_pipeline(images, SPEED_SAMPLE, pipeline, speed_seconds)
@@ -130,8 +134,6 @@ def run_compare(
             tables[pipeline.name] = table
             rows.append({**summarize(pipeline.name, table), "fps": fps})
         del images
-    finally:
-        cv2.setNumThreads(threads)
     summary = pd.DataFrame(rows)
     sweeps = run_sweeps(pipelines, sweep or SweepConfig(), variant=variant)
     edges = boundaries(sweeps)

@@ -104,7 +104,8 @@ def _precision_recall(predicted: pd.Series, truth: pd.Series) -> dict:
 # -- a whole dataset ------------------------------------------------------------------------
 
 
-def _samples(dataset: Path) -> list[dict]:
+def sample_records(dataset: Path) -> list[dict]:
+    """Every sample's ``sample.json``, in id order; ValueError if there are none."""
     records = [json.loads(p.read_text()) for p in sorted(Path(dataset).glob("*/sample.json"))]
     if not records:
         raise ValueError(f"{dataset}: no samples (no */sample.json)")
@@ -133,7 +134,7 @@ def score_dataset(dataset: Path, config: PipelineConfig, out_dir: Path) -> pd.Da
     from scenes.camera import FisheyeCamera
 
     dataset, out_dir = Path(dataset), Path(out_dir)
-    records = {r["sample_id"]: r for r in _samples(dataset)}
+    records = {r["sample_id"]: r for r in sample_records(dataset)}
     order = sorted(records, key=lambda s: records[s]["branches_mm"] != [])  # twins first
     thresholds: dict[str, float] = {}
     rows = []
