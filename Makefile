@@ -25,8 +25,12 @@ llvm: $(VENV)/.installed
 	  echo "      Fast path: sudo apt-get install libllvm19  (or set DRJIT_LIBLLVM_PATH)"; \
 	fi
 
+# The default study on the prototype camera with its sensitivity band (PSF x 0.5 .. 1.5).
+BAND ?= 0.5,0.75,1,1.25,1.5
+
 study: setup
-	$(BIN)/whiskerbench detectability --out results/detectability/default
+	$(BIN)/whiskerbench detectability --camera prototype --psf-scale $(BAND) \
+	  --out results/detectability/default
 
 quick: setup
 	$(BIN)/whiskerbench detectability --quick
@@ -36,6 +40,7 @@ test: setup
 
 bench: setup
 	$(BIN)/whiskerbench bench detectability
+	$(BIN)/whiskerbench bench detectability --psf-scale $(BAND) --full-frame-cells 1
 
 # The comparison's dataset: 24 outdoor samples (soft strips and dense leaves, 3 distances, no /
 # one / two branches), about 5 min to render; reruns skip what is done.

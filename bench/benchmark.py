@@ -1,8 +1,10 @@
 """Speed benchmarks: print their figures and ratios against a baseline measured in the same run.
 
-``bench_detectability`` times the whole study as it runs (clean crop per cell, N camera images
-drawn from it) and, for a few cells, the same work on full 2592 x 1944 frames: render the full
-frame, draw the images, detect on the full frame. The full-frame cost is extrapolated to the
+``bench_detectability`` times the whole study as it runs (clean crop per cell, camera images
+drawn from it through the camera twin until each cell is settled, the tilt refinement, every PSF
+scale asked for) with each stage's CPU cost per image, and, for a few cells, the same work on
+full 2592 x 1944 frames: render the full frame, apply the twin's optics and sensor stages to the
+whole frame, detect on it. The full-frame cost is extrapolated to the
 whole grid from those cells, and the detection rates of both routes are printed side by side,
 so the reader sees what the crop saves and that it changes no answer.
 """
@@ -19,6 +21,7 @@ import pandas as pd
 from bench.detectability import StudyConfig, camera_images, init_worker, renderer_for
 from bench.study import run_study
 from pipeline.detect import detect_markers
+from renderers.camera_twin import optical_image
 from scenes.study import study_pose
 
 FULL_FRAME_IMAGES = 4  # images drawn per full-frame cell (each is a 5-megapixel frame)
@@ -32,17 +35,14 @@ def _full_frame_cell(config: StudyConfig, cell, n_images: int) -> dict:
     T = study_pose(cell.alpha_deg, cell.phi_deg, config.distance_mm)
     renderer.scene.set_pose(T, cell.size_mm)
     t0 = time.perf_counter()
-    rendered = renderer.render(Window.full(config.camera), seed=1)
+    rendered = renderer.render(Window.full(config.camera.lens), seed=1)
     t1 = time.perf_counter()
-    images = camera_images(
-        config, cell.lighting, rendered, rendered.radiance(), n_images, np.random.default_rng(0)
-    )
+    irradiance = optical_image(rendered.radiance(), config.camera)
+    rng = np.random.default_rng(0)
+    images = camera_images(config, config.camera, cell.lighting, irradiance, (0, 0), n_images, rng)
     t2 = time.perf_counter()
     found = [
-        any(
-            d.marker_id == config.marker_id
-            for d in detect_markers(im, config.detector, camera=config.camera)
-        )
+        any(d.marker_id == config.marker_id for d in detect_markers(im, config.detector))
         for im in images
     ]
     t3 = time.perf_counter()
@@ -60,10 +60,10 @@ def bench_detectability(
     """Time the study (crops) and full frames in one run; print figures and the ratio."""
     init_worker(variant)
     cells = config.cells()
-    n_images = len(cells) * config.images
     print(
-        f"detectability benchmark: {len(cells)} cells x {config.images} images = {n_images} "
-        f"images, {config.spp} spp, workers={workers}"
+        f"detectability benchmark: camera {config.camera.name}, {len(cells)} grid cells x "
+        f"{len(config.psf_scales)} PSF scales, at most {config.images} images a cell, "
+        f"{config.spp} spp, workers={workers}"
     )
 
     # --- Crops: the study as it runs, from scratch in a temporary folder
@@ -72,10 +72,17 @@ def bench_detectability(
         manifest = run_study(config, Path(tmp) / "run", variant=variant, workers=workers)
         crop_s = time.perf_counter() - t0
         crop_rates = pd.read_csv(Path(tmp) / "run" / "summary.csv")
+    n_images = manifest["images_total"]
     print(
-        f"  crops:       {crop_s:7.1f} s wall for the whole study, "
-        f"{n_images / crop_s:7.1f} images/s "
-        f"(variant {manifest['variant']}; stage CPU s: {manifest['stage_cpu_s']})"
+        f"  crops:       {crop_s:7.1f} s wall for the whole study, {manifest['cells_total']} "
+        f"cells ({manifest['refinement_rounds']} refinement rounds), {n_images} images, "
+        f"{n_images / crop_s:7.1f} images/s (variant {manifest['variant']})"
+    )
+    per_image = {k: v / n_images * 1e3 for k, v in manifest["stage_cpu_s"].items()}
+    print(
+        "  CPU per image (ms): "
+        + ", ".join(f"{k.removesuffix('_s')} {v:.2f}" for k, v in per_image.items())
+        + " (render and optics run once per cell and scale, shared by its images)"
     )
 
     # --- Full frames: a few cells, extrapolated to the grid
@@ -89,19 +96,22 @@ def bench_detectability(
             & (crop_rates.alpha_deg == cell.alpha_deg)
             & (crop_rates.phi_deg == cell.phi_deg)
             & (crop_rates.lighting == cell.lighting)
+            & (crop_rates.psf_scale == config.psf_scales[0])
         ]
         print(
-            f"  full frame {cell.key}: render {result['render_s']:.1f} s, per image response "
+            f"  full frame {cell.key}: render {result['render_s']:.1f} s, per image twin "
             f"{result['response_s_per_image']:.2f} s + detect {result['detect_s_per_image']:.2f} s,"
             f" detection rate {result['rate']:.2f} (crop: {row.detection_rate.iloc[0]:.2f})"
         )
     per_cell = np.mean(
         [
-            r["render_s"] + config.images * (r["response_s_per_image"] + r["detect_s_per_image"])
+            r["render_s"]
+            + n_images / manifest["cells_total"]
+            * (r["response_s_per_image"] + r["detect_s_per_image"])
             for r in full
         ]
     )
-    full_s = per_cell * len(cells)
+    full_s = per_cell * manifest["cells_total"]
     print(
         f"  full frames: {full_s:7.1f} s estimated for the whole study "
         f"({n_images / full_s:.2f} images/s), from {len(picks)} cells"
@@ -114,5 +124,6 @@ def bench_detectability(
         "full_frame_est_s": full_s,
         "ratio": full_s / crop_s,
         "variant": manifest["variant"],
+        "cpu_ms_per_image": per_image,
     }
     return summary

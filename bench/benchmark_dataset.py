@@ -30,13 +30,14 @@ def pick_sample(config: DatasetConfig) -> SampleSpec:
 
 def _time_frames(
     frames: SampleFrames, indices: np.ndarray
-) -> tuple[list[np.ndarray], float, float]:
-    """(images, render seconds, total seconds) after one warm-up frame (kernels compile)."""
+) -> tuple[list[np.ndarray], float, float, float]:
+    """(images, render s, camera twin s, total s) after one warm-up frame (kernels compile)."""
     frames.frame(int(indices[0]))
-    frames.render_s = frames.response_s = 0.0
+    frames.render_s = frames.optics_s = frames.sensor_s = 0.0
     t0 = time.perf_counter()
     images = [frames.frame(int(f)) for f in indices]
-    return images, frames.render_s, time.perf_counter() - t0
+    twin_s = frames.optics_s + frames.sensor_s
+    return images, frames.render_s, twin_s, time.perf_counter() - t0
 
 
 def _detections(image: np.ndarray, detector: DetectorConfig) -> dict[int, np.ndarray]:
@@ -73,7 +74,7 @@ def bench_dataset(
     indices = np.arange(start, min(start + frames, len(deflection)))
     print(
         f"sample {sample.sample_id}: frames {indices[0]}-{indices[-1]} (largest deflection "
-        f"{deflection.max():.1f} mm), variant {chosen}"
+        f"{deflection.max():.1f} mm), variant {chosen}, camera {config.camera.name}"
     )
     results = {}
     for mode, full in (("band", False), ("full", True)):
@@ -81,19 +82,21 @@ def bench_dataset(
         t0 = time.perf_counter()
         recorder = SampleFrames(config, sample, sim, sampling)
         setup_s = time.perf_counter() - t0
-        images, render_s, total_s = _time_frames(recorder, indices)
+        images, render_s, twin_s, total_s = _time_frames(recorder, indices)
         results[mode] = {
             "images": images,
             "rays_per_frame": recorder.renderer.rays_per_frame,
             "region": recorder.renderer.region,
             "setup_s": setup_s,
             "render_fps": len(indices) / render_s,
+            "twin_s_per_frame": twin_s / len(indices),
             "frame_fps": len(indices) / total_s,
         }
         print(
             f"{mode:>5}: region {recorder.renderer.region.width}x{recorder.renderer.region.height}"
             f" px, {recorder.renderer.rays_per_frame / 1e6:.2f} M rays/frame, "
-            f"render {results[mode]['render_fps']:.1f} frames/s, with camera response "
+            f"render {results[mode]['render_fps']:.1f} frames/s, camera twin "
+            f"{results[mode]['twin_s_per_frame']:.3f} s/frame, both "
             f"{results[mode]['frame_fps']:.1f} frames/s (setup {setup_s:.1f} s)"
         )
     ratio = results["band"]["render_fps"] / results["full"]["render_fps"]
@@ -116,10 +119,12 @@ def bench_dataset(
     figures = {
         "sample": sample.sample_id,
         "variant": chosen,
+        "camera_profile": config.camera.name,
         "band_render_fps": results["band"]["render_fps"],
         "full_render_fps": results["full"]["render_fps"],
         "band_frame_fps": results["band"]["frame_fps"],
         "full_frame_fps": results["full"]["frame_fps"],
+        "twin_s_per_frame": {m: results[m]["twin_s_per_frame"] for m in results},
         "ratio": ratio,
         "same_id_frames": same_ids,
         "frames": len(indices),

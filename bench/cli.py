@@ -10,8 +10,11 @@ import os
 import sys
 from pathlib import Path
 
+from bench.cli_args import float_list
+from bench.cli_camera import add_camera_parser
 from bench.cli_dataset import OPTION_OF_FIELD as DATASET_OPTION_OF_FIELD
 from bench.cli_dataset import add_dataset_options, cmd_bench_dataset, cmd_dataset
+from bench.cli_lens import add_lens_parser
 from bench.cli_pipeline import (
     add_bench_pipeline_options,
     add_compare_options,
@@ -23,15 +26,17 @@ from bench.cli_pipeline import (
     cmd_score,
 )
 from bench.detectability import (
+    BAND_PSF_SCALES,
     DEFAULT_ALPHAS_DEG,
     DEFAULT_PHIS_DEG,
     DEFAULT_SIZES_MM,
     StudyConfig,
     StudyConfigError,
+    profile_from_option,
 )
 from scenes.validation import FieldError
 
-QUICK = {"sizes": (8.8, 13.2), "alphas": (0.0, 60.0, 85.0), "phis": (0.0, 30.0, 60.0), "images": 20}
+QUICK = {"sizes": (8.8, 13.2), "alphas": (0.0, 60.0, 85.0), "phis": (0.0, 30.0, 60.0), "images": 30}
 OPTION_OF_FIELD = {
     "sizes_mm": "--sizes",
     "alphas_deg": "--alphas",
@@ -44,6 +49,9 @@ OPTION_OF_FIELD = {
     "out": "--out",
     "variant": "--variant",
     "workers": "--workers",
+    "camera": "--camera",
+    "psf_scales": "--psf-scale",
+    "exposure": "--exposure",
 }
 
 
@@ -54,43 +62,56 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message} (see --help)\n")
 
 
-def _floats(option: str):
-    def parse(text: str) -> tuple[float, ...]:
-        try:
-            values = tuple(float(v) for v in text.split(",") if v.strip())
-        except ValueError:
-            raise argparse.ArgumentTypeError(
-                f"{option}: {text!r} is not a comma-separated list of numbers"
-            ) from None
-        if not values:
-            raise argparse.ArgumentTypeError(f"{option}: needs at least one number")
-        return values
-
-    return parse
-
-
 def _add_study_options(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--sizes",
-        type=_floats("--sizes"),
+        type=float_list("--sizes"),
         metavar="MM,...",
         help=f"marker sizes in mm (default {','.join(f'{s:g}' for s in DEFAULT_SIZES_MM)})",
     )
     p.add_argument(
         "--alphas",
-        type=_floats("--alphas"),
+        type=float_list("--alphas"),
         metavar="DEG,...",
         help="angular positions in degrees, 0..theta_max (default "
         f"{','.join(f'{a:g}' for a in DEFAULT_ALPHAS_DEG)})",
     )
     p.add_argument(
         "--phis",
-        type=_floats("--phis"),
+        type=float_list("--phis"),
         metavar="DEG,...",
         help="tilts about both in-plane axes, 0..89 degrees (default "
         f"{','.join(f'{a:g}' for a in DEFAULT_PHIS_DEG)})",
     )
-    p.add_argument("--images", type=int, metavar="N", help="images per cell (default 60)")
+    p.add_argument(
+        "--images",
+        type=int,
+        metavar="N",
+        help="cap on images per cell: each cell draws images (10, 30, 80, 160, 240, ...) until "
+        "the 95%% Wilson interval of its detection rate excludes 0.95 or N is reached "
+        "(default 240)",
+    )
+    p.add_argument(
+        "--camera",
+        metavar="PROFILE",
+        default="prototype",
+        help="camera profile: a shipped name (prototype, ideal) or a profile JSON file "
+        "(default prototype, the seed system's ELP/MT9P001 fisheye camera)",
+    )
+    p.add_argument(
+        "--psf-scale",
+        type=float_list("--psf-scale"),
+        metavar="F,...",
+        default=(1.0,),
+        help="factors on the profile's PSF widths; several draw the sensitivity band "
+        "(make study: 0.5,0.75,1,1.25,1.5; default 1)",
+    )
+    p.add_argument(
+        "--exposure",
+        type=float,
+        default=1.0,
+        help="linear radiance to sensor full scale, times the lighting preset's own (default 1)",
+    )
     p.add_argument(
         "--distance",
         type=float,
@@ -123,7 +144,7 @@ def _add_study_options(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--quick",
         action="store_true",
-        help="a small grid for a first look (2 sizes x 3 alphas x 3 phis x 20 images)",
+        help="a small grid for a first look (2 sizes x 3 alphas x 3 phis, at most 30 images)",
     )
 
 
@@ -135,17 +156,20 @@ def study_config(args: argparse.Namespace) -> StudyConfig:
         sizes_mm=args.sizes or quick.get("sizes", DEFAULT_SIZES_MM),
         alphas_deg=args.alphas or quick.get("alphas", DEFAULT_ALPHAS_DEG),
         phis_deg=args.phis or quick.get("phis", DEFAULT_PHIS_DEG),
-        images=args.images if args.images is not None else quick.get("images", 60),
+        images=args.images if args.images is not None else quick.get("images", 240),
         distance_mm=args.distance,
         lightings=lightings,
         dictionary=args.dictionary,
         seed=args.seed,
         spp=args.spp,
+        camera=profile_from_option(args.camera),
+        psf_scales=args.psf_scale,
+        exposure=args.exposure,
     )
 
 
 def default_out(config: StudyConfig, quick: bool) -> Path:
-    if config == StudyConfig():
+    if config == StudyConfig() or config == StudyConfig(psf_scales=BAND_PSF_SCALES):
         name = "default"
     elif quick and config == study_config(_parser().parse_args(["detectability", "--quick"])):
         name = "quick"
@@ -172,10 +196,12 @@ def _cmd_detectability(args: argparse.Namespace) -> int:
     )
     print(
         f"wrote {out}/ ({manifest['cells_total']} cells, {manifest['cells_resumed']} resumed; "
-        f"{manifest['images_computed']} images in {manifest['wall_s']['cells_s']:.1f} s, "
+        f"{manifest['images_total']} images in {manifest['wall_s']['cells_s']:.1f} s, "
         f"{manifest['images_per_s'] or 0:.0f} images/s, variant {manifest['variant']})"
     )
     print(f"max phi with detection >= 95%: {out / 'max_phi.csv'}, plot {out / 'max_phi.png'}")
+    if len(config.psf_scales) > 1:
+        print(f"band over PSF scales {', '.join(f'{s:g}' for s in config.psf_scales)} included")
     return 0
 
 
@@ -249,6 +275,8 @@ def _parser() -> argparse.ArgumentParser:
         "--out", help="also write bench.json and a still frame (still.png) into this folder"
     )
     bdata.set_defaults(func=cmd_bench_dataset)
+    add_camera_parser(sub, _Parser)
+    add_lens_parser(sub, _Parser)
     return parser
 
 

@@ -9,10 +9,12 @@ from bench.dataset import (
     DEFAULT_BRANCHES,
     DEFAULT_DISTANCES,
     DEFAULT_FOLIAGE,
+    DEFAULT_PROFILE,
     DEFAULT_PROTOCOLS,
     DatasetConfig,
     branches_name,
 )
+from bench.detectability import profile_from_option
 from renderers.frames import FrameSampling
 
 #: A few short samples: one foliage, one distance, no / one / two branches, one outdoor pass.
@@ -35,6 +37,8 @@ OPTION_OF_FIELD = {
     "passes": "--passes",
     "fps": "--fps",
     "exposure_ms": "--exposure-ms",
+    "exposure": "--exposure",
+    "camera": "--camera",
     "marker_spp": "--spp",
     "subframes": "--subframes",
     "workers": "--workers",
@@ -101,6 +105,18 @@ def add_dataset_options(p: argparse.ArgumentParser) -> None:
         "--exposure-ms", type=float, default=8.0, help="exposure time: motion blur (default 8)"
     )
     p.add_argument(
+        "--camera",
+        metavar="PROFILE",
+        help=f"camera twin: a shipped profile name or a profile JSON file (default "
+        f"{DEFAULT_PROFILE})",
+    )
+    p.add_argument(
+        "--exposure",
+        type=float,
+        default=1.0,
+        help="radiance to sensor full scale, times the lighting preset's own (default 1)",
+    )
+    p.add_argument(
         "--spp", type=int, default=4, help="samples per pixel where markers can be (default 4)"
     )
     p.add_argument("--subframes", type=int, default=4, help="time samples per exposure (default 4)")
@@ -119,6 +135,7 @@ def add_dataset_options(p: argparse.ArgumentParser) -> None:
 def dataset_config(args: argparse.Namespace) -> DatasetConfig:
     """The DatasetConfig the options describe (--quick fills what was not given)."""
     quick = QUICK if args.quick else {}
+    camera = {} if args.camera is None else {"camera": profile_from_option(args.camera)}
     sampling = FrameSampling(
         marker_spp=args.spp, subframes=args.subframes, full_frame=args.full_frame
     )
@@ -135,7 +152,9 @@ def dataset_config(args: argparse.Namespace) -> DatasetConfig:
         passes=args.passes if args.passes is not None else quick.get("passes"),
         fps=args.fps,
         exposure_ms=args.exposure_ms,
+        exposure=args.exposure,
         sampling=sampling,
+        **camera,
     )
 
 
@@ -153,8 +172,14 @@ def cmd_dataset(args: argparse.Namespace) -> int:
         f"wrote {out}/ ({len(manifest['samples'])} samples, {manifest['skipped']} already done; "
         f"{manifest['frames_rendered']} frames in {manifest['wall_s']:.1f} s"
         + (f", {rate:.1f} frames/s" if rate else "")
-        + f", variant {manifest['variant']})"
+        + f", variant {manifest['variant']}, camera {manifest['camera_profile']})"
     )
+    if manifest["frames_rendered"]:
+        per_frame = {k: v / manifest["frames_rendered"] for k, v in manifest["stage_s"].items()}
+        print(
+            "per frame: "
+            + ", ".join(f"{k.removesuffix('_s')} {v:.3f} s" for k, v in per_frame.items())
+        )
     return 0
 
 

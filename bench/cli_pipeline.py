@@ -4,7 +4,6 @@
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
@@ -34,7 +33,12 @@ def _pipelines(text: str) -> list[PipelineConfig]:
 
 def add_detect_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("video", type=Path, help="video file (synthetic or recorded)")
-    p.add_argument("--camera", type=Path, required=True, help="camera.json (model or OpenCV form)")
+    p.add_argument(
+        "--camera",
+        required=True,
+        help="camera profile JSON (a dataset's camera.json; a bare camera file too) or a shipped "
+        "profile name; its lens is used",
+    )
     p.add_argument(
         "--pipeline",
         default=PRESETS["paper"],
@@ -52,7 +56,7 @@ def add_detect_options(p: argparse.ArgumentParser) -> None:
 
 def cmd_detect(args: argparse.Namespace) -> int:
     from bench.detect import run_detect
-    from scenes.camera import FisheyeCamera
+    from scenes.profile import ProfileError, load_profile
 
     def fail(message: str) -> int:
         print(f"whiskerbench detect: error: {message}", file=sys.stderr)
@@ -61,8 +65,8 @@ def cmd_detect(args: argparse.Namespace) -> int:
     if args.foliage_threshold is not None and not args.foliage_threshold >= 0:
         return fail(f"--foliage-threshold: {args.foliage_threshold}: must be >= 0 mm")
     try:
-        camera = FisheyeCamera.from_dict(json.loads(args.camera.read_text()))
-    except (OSError, ValueError) as exc:
+        camera = load_profile(args.camera).lens
+    except ProfileError as exc:
         return fail(f"--camera: {args.camera}: {exc}")
     if not args.video.is_file():
         return fail(f"{args.video}: no such file")

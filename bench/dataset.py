@@ -7,8 +7,10 @@ redoes one that a crash cut short.
 
 Per sample: vegetation (:mod:`scenes.vegetation`) and a protocol (:mod:`scenes.motion`) give the
 array's path; the mechanics (:mod:`scenes.mechanics`) give every whisker's deflection at every
-time sample; the frame renderer (:mod:`renderers.frames`) and the camera response make the
-frames; :mod:`bench.labels` makes the exact labels; :mod:`bench.video` writes the videos.
+time sample; the frame renderer (:mod:`renderers.frames`) makes each frame's radiance and the
+camera twin (:mod:`renderers.camera_twin`, one :class:`~scenes.profile.CameraProfile`) records
+it: optics once per frame, then the sensor and stream stages; :mod:`bench.labels` makes the
+exact labels with the profile's lens; :mod:`bench.video` writes the videos.
 """
 
 from __future__ import annotations
@@ -28,11 +30,10 @@ import pandas as pd
 from bench.atomic import atomic_path, write_json
 from bench.labels import corners_of_frame, label_table
 from renderers.frames import FrameSampling
-from renderers.response import CameraResponse, apply_response
 from scenes.array import ArraySpec
-from scenes.camera import FisheyeCamera, default_camera
 from scenes.lighting import get_lighting, lighting_names
 from scenes.motion import MotionSpec, MotionSpecError, get_protocol
+from scenes.profile import CameraProfile, load_profile
 from scenes.validation import FieldError
 from scenes.vegetation import (
     FOLIAGE_KINDS,
@@ -59,6 +60,14 @@ SAMPLE_FILES = ("video.mp4", "labels.parquet", "camera.json", "preview.mp4")
 SEED_NAMES = ("render", "vegetation", "noise")
 #: The lead-in holds the array this far (mm) short of the foliage front: no contact.
 APPROACH_CLEARANCE_MM = 15.0
+#: The camera twin a dataset is recorded through unless the config names another.
+DEFAULT_PROFILE = "prototype"
+#: Largest exposure multiplier accepted (the study's bound: linear radiance to full scale).
+MAX_EXPOSURE = 1e6
+
+
+def default_profile() -> CameraProfile:
+    return load_profile(DEFAULT_PROFILE)
 
 
 class DatasetConfigError(FieldError):
@@ -110,10 +119,12 @@ class DatasetConfig:
     passes: int | None = None
     fps: float | None = None
     exposure_ms: float = 8.0
+    #: Linear radiance to sensor full scale, times the lighting preset's own exposure.
+    exposure: float = 1.0
     sampling: FrameSampling = field(default_factory=FrameSampling)
-    response: CameraResponse = field(default_factory=CameraResponse)
     array: ArraySpec = field(default_factory=ArraySpec)
-    camera: FisheyeCamera = field(default_factory=default_camera)
+    #: The camera twin: lens geometry (renderer and labels), optics, sensor and stream.
+    camera: CameraProfile = field(default_factory=default_profile)
 
     def __post_init__(self) -> None:
         for name, allowed in (
@@ -132,6 +143,12 @@ class DatasetConfig:
                 )
         if not self.branches:
             raise DatasetConfigError("branches", "needs at least one configuration")
+        if not isinstance(self.camera, CameraProfile):
+            raise DatasetConfigError("camera", f"{self.camera!r}: must be a CameraProfile")
+        e = self.exposure
+        if not (isinstance(e, int | float) and math.isfinite(e) and 0 < e <= MAX_EXPOSURE):
+            raise DatasetConfigError("exposure", f"{e!r}: allowed range is (0, {MAX_EXPOSURE:g}]")
+        self._check_lens()
         if not (isinstance(self.frames_step, int) and self.frames_step >= 1):
             raise DatasetConfigError(
                 "frames_step", f"must be an integer >= 1, got {self.frames_step}"
@@ -151,6 +168,21 @@ class DatasetConfig:
                     error = branch_reach_error(branches, distance, self.array, motion.amplitude_mm)
                     if error:
                         raise DatasetConfigError("branches", error)
+
+    def _check_lens(self) -> None:
+        """The profile's lens must see every marker at any deflection and make even-sized
+        frames (4:2:0 video)."""
+        from renderers.frames import marker_region
+
+        lens = self.camera.lens
+        if lens.width_px % 2 or lens.height_px % 2:
+            raise DatasetConfigError(
+                "camera", f"{lens.width_px}x{lens.height_px} px: the video needs an even size"
+            )
+        try:
+            marker_region(lens, self.array, margin_px=0)
+        except ValueError as exc:
+            raise DatasetConfigError("camera", f"{self.camera.name}: {exc}") from None
 
     def motion(self, protocol: str, distance: str = "close") -> MotionSpec:
         """The protocol with this config's overrides, withdrawn just clear of the foliage."""
@@ -179,8 +211,9 @@ class DatasetConfig:
         ]
 
     def to_json(self) -> dict:
+        """Every field as JSON; ``camera`` is the profile's own JSON (name and every stage)."""
         out = dataclasses.asdict(self)
-        out["camera"] = self.camera.to_dict()
+        out["camera"] = self.camera.to_json()
         return out
 
     def settings_hash(self) -> str:
@@ -200,7 +233,8 @@ class SampleTiming:
     frames: int
     simulate_s: float
     render_s: float
-    response_s: float
+    optics_s: float  # the twin's optical stages, once per frame
+    sensor_s: float  # the twin's sensor, processing and stream stages
     encode_s: float
     total_s: float
 
@@ -259,13 +293,14 @@ def simulate_sample(config: DatasetConfig, sample: SampleSpec) -> SimulatedSampl
     contact = result.contact[unsort].reshape(len(times), k + 1, -1)[:, k]
     branch_contact = result.branch_contact[unsort].reshape(len(times), k + 1, -1)[:, k]
     labels = label_table(
-        config.camera, config.array, angles[:, k], contact, branch_contact, times, source
+        config.camera.lens, config.array, angles[:, k], contact, branch_contact, times, source
     )
     return SimulatedSample(vegetation, motion, times, source, sub_times, angles, labels)
 
 
 class SampleFrames:
-    """Renders and records a simulated sample's frames, full-size uint8, one at a time."""
+    """Renders a simulated sample's frames and records them through the camera twin, full-size
+    uint8, one at a time."""
 
     def __init__(
         self,
@@ -277,60 +312,61 @@ class SampleFrames:
         from renderers.frames import FrameRenderer
 
         seeds = sample.seeds(config.seed)
-        self.config, self.sim = config, sim
+        self.config, self.sim, self.profile = config, sim, config.camera
         lighting = get_lighting(sample.lighting)
         self.renderer = FrameRenderer(
-            config.camera,
+            self.profile.lens,
             config.array,
             [(p.name, p.mesh, p.albedo_rgb) for p in sim.vegetation.parts],
             lighting,
             sampling or config.sampling,
             seeds["render"],
             angles_rad=sim.angles_rad,
+            block_px=self.profile.stream.block_px,
         )
-        self.response = config.response.scaled(lighting.exposure)
+        self.exposure = config.exposure * lighting.exposure
         self.rng_band, self.rng_rest = (
             np.random.default_rng(s) for s in np.random.SeedSequence(seeds["noise"]).spawn(2)
         )
-        self._theta: dict = {}
-        self.render_s = self.response_s = 0.0
+        self.render_s = self.optics_s = self.sensor_s = 0.0
 
-    def luminance(self, f: int) -> np.ndarray:
-        """Clean linear luminance of frame ``f`` over the renderer's region."""
+    def radiance(self, f: int) -> np.ndarray:
+        """Clean linear RGB radiance of frame ``f`` over the renderer's region."""
         k = self.renderer.sampling.subframes
         offsets = self.sim.motion.offsets_at(self.sim.sub_times_s[f])
         return self.renderer.render(self.sim.angles_rad[f, :k], offsets)
 
-    def _record(self, luminance: np.ndarray, window, inside: np.ndarray, rng) -> np.ndarray:
-        theta = None
-        if self.response.needs_theta:
-            if window not in self._theta:  # per-pixel ray angles: once per window, not per frame
-                self._theta[window] = self.config.camera.theta_of_pixel(window.pixel_centres())
-            theta = self._theta[window]
-        return apply_response(
-            luminance, self.response, rng, 1, theta, self.config.camera.theta_max_rad, inside
-        )[0]
+    def _record(self, irradiance: np.ndarray, window, rng: np.random.Generator) -> np.ndarray:
+        from renderers.camera_twin import sensor_images
+
+        origin = (window.x0, window.y0)
+        return sensor_images(irradiance, self.profile, rng, 1, origin, self.exposure)[0]
 
     def frame(self, f: int) -> np.ndarray:
         """The camera's 8-bit grey frame ``f`` (H, W): black outside the rendered region.
 
-        The band's noise comes from its own stream, so a band frame and a full frame of the same
-        sample hold identical pixels wherever their clean renders agree.
+        The optics run once over the region; the band's sensor noise comes from its own
+        stream, so a band frame and a full frame of the same sample hold identical pixels
+        wherever their optical images agree (the band starts on the stream's block grid).
         """
+        from renderers.camera_twin import optical_image
+
         t0 = time.perf_counter()
-        luminance = self.luminance(f)
+        radiance = self.radiance(f)
         t1 = time.perf_counter()
-        camera, region, band = self.config.camera, self.renderer.region, self.renderer.band
-        image = np.zeros((camera.height_px, camera.width_px), np.uint8)
-        inside = self.renderer.inside
+        lens, region, band = self.profile.lens, self.renderer.region, self.renderer.band
+        irradiance = optical_image(radiance, self.profile, (region.x0, region.y0))
+        t2 = time.perf_counter()
+        image = np.zeros((lens.height_px, lens.width_px), np.uint8)
         if region != band:
-            image[:] = self._record(luminance, region, inside, self.rng_rest)
+            image[region.y0 : region.y0 + region.height, region.x0 : region.x0 + region.width] = (
+                self._record(irradiance, region, self.rng_rest)
+            )
         rows = slice(band.y0 - region.y0, band.y0 - region.y0 + band.height)
-        image[band.y0 : band.y0 + band.height] = self._record(
-            luminance[rows], band, inside[rows], self.rng_band
-        )
+        image[band.y0 : band.y0 + band.height] = self._record(irradiance[rows], band, self.rng_band)
         self.render_s += t1 - t0
-        self.response_s += time.perf_counter() - t1
+        self.optics_s += t2 - t1
+        self.sensor_s += time.perf_counter() - t2
         return image
 
 
@@ -350,12 +386,13 @@ def run_sample(config: DatasetConfig, sample: SampleSpec, out_dir: Path) -> dict
     n_written = write_video(
         folder / "video.mp4", (frames.frame(f) for f in range(n_frames)), sim.motion.fps
     )
-    encode_s = time.perf_counter() - t_frames - frames.render_s - frames.response_s
+    twin_s = frames.optics_s + frames.sensor_s
+    encode_s = time.perf_counter() - t_frames - frames.render_s - twin_s
 
     # --- Labels, camera, preview (drawn on the decoded video: what the pipeline will see)
     with atomic_path(folder / "labels.parquet") as tmp:
         sim.labels.to_parquet(tmp, index=False)
-    write_json(folder / "camera.json", config.camera.to_dict())
+    write_json(folder / "camera.json", config.camera.to_json())
     truth = [corners_of_frame(sim.labels, f) for f in range(n_written)]
     write_preview(
         folder / "preview.mp4",
@@ -371,7 +408,8 @@ def run_sample(config: DatasetConfig, sample: SampleSpec, out_dir: Path) -> dict
         frames=n_written,
         simulate_s=t_sim - t_start,
         render_s=frames.render_s,
-        response_s=frames.response_s,
+        optics_s=frames.optics_s,
+        sensor_s=frames.sensor_s,
         encode_s=encode_s,
         total_s=time.perf_counter() - t_start,
     )
@@ -392,6 +430,8 @@ def run_sample(config: DatasetConfig, sample: SampleSpec, out_dir: Path) -> dict
         "frames": n_written,
         "frames_step": config.frames_step,
         "exposure_ms": config.exposure_ms,
+        "exposure_applied": frames.exposure,  # config.exposure x the lighting preset's
+        "camera_profile": config.camera.name,
         "sampling": dataclasses.asdict(config.sampling),
         "region_px": dataclasses.asdict(frames.renderer.region),
         "rays_per_frame": frames.renderer.rays_per_frame,

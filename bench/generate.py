@@ -72,8 +72,14 @@ def run_dataset(
     wall_s = time.perf_counter() - start
     records = [json.loads((out_dir / s.sample_id / "sample.json").read_text()) for s in samples]
     frames_new = sum(r["frames"] for r in new)
+    # seconds in each stage of the samples made in this run (summed over workers); other:
+    # setting up the renderer, labels and the preview
+    stages = ("simulate_s", "render_s", "optics_s", "sensor_s", "encode_s")
+    stage_s = {k: sum(r["timing_s"][k] for r in new) for k in stages}
+    stage_s["other_s"] = sum(r["timing_s"]["total_s"] for r in new) - sum(stage_s.values())
     manifest = {
-        "config": config.to_json(),
+        "camera_profile": config.camera.name,
+        "config": config.to_json(),  # its "camera" is the whole profile
         "settings_sha256": settings,
         "versions": package_versions(),
         "variant": chosen,
@@ -91,6 +97,7 @@ def run_dataset(
         "frames": sum(r["frames"] for r in records),
         "frames_rendered": frames_new,
         "frames_per_s": frames_new / wall_s if frames_new else None,
+        "stage_s": stage_s,
     }
     write_json(out_dir / "manifest.json", manifest)
     return manifest

@@ -131,7 +131,7 @@ def score_dataset(dataset: Path, config: PipelineConfig, out_dir: Path) -> pd.Da
     from bench.detect import run_detect
     from bench.video import video_info
     from pipeline.branches import NoBaselineError, foliage_threshold
-    from scenes.camera import FisheyeCamera
+    from scenes.profile import load_profile
 
     dataset, out_dir = Path(dataset), Path(out_dir)
     records = {r["sample_id"]: r for r in sample_records(dataset)}
@@ -143,7 +143,7 @@ def score_dataset(dataset: Path, config: PipelineConfig, out_dir: Path) -> pd.Da
         labels = pd.read_parquet(folder / "labels.parquet")
         if video_info(folder / "video.mp4").frame_count != labels["frame"].nunique():
             raise ValueError(f"{sample_id}: the labels do not match the video's frame count")
-        camera = FisheyeCamera.from_dict(json.loads((folder / "camera.json").read_text()))
+        camera = load_profile(folder / "camera.json").lens  # a profile, or an old bare camera
         threshold = None
         if config.threshold == "fixed":
             threshold = thresholds.get(_none_twin(record))

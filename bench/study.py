@@ -1,4 +1,10 @@
-"""Run the detectability study into a folder: cells (resumable), tables, plots, manifest."""
+"""Run the detectability study into a folder: cells (resumable), tables, plots, manifest.
+
+The grid's tilts run first; then, per (lighting, PSF scale, size, alpha), a tilt halfway between
+the largest passing and the next failing tilt is added, round after round, until the bracket is
+no wider than ``phi_resolution_deg``. A cell's geometry is rendered once for every scale that
+needs it.
+"""
 
 from __future__ import annotations
 
@@ -13,8 +19,14 @@ import pandas as pd
 
 from bench import report
 from bench.atomic import atomic_path, check_writable, write_bytes, write_json
-from bench.detectability import Cell, StudyConfig, StudyConfigError, init_worker, run_cell
-from bench.executor import run_tasks
+from bench.detectability import (
+    Cell,
+    StudyConfig,
+    StudyConfigError,
+    init_worker,
+    run_cell,
+)
+from bench.executor import TaskPool
 
 PACKAGES = (
     "whiskerbench",
@@ -43,23 +55,57 @@ def package_versions() -> dict[str, str]:
 class _CellTask:
     config: StudyConfig
     cell: Cell
+    scales: tuple[float, ...]
     out_dir: Path
     save_images: bool
 
 
 def _run_task(task: _CellTask) -> dict:
     start = time.perf_counter()
-    timings = run_cell(task.config, task.cell, task.out_dir, task.save_images)
+    timings = run_cell(task.config, task.cell, task.out_dir, task.scales, task.save_images)
     timings["cell_s"] = time.perf_counter() - start
     return timings
 
 
-def _cell_done(out_dir: Path, cell: Cell, config: StudyConfig, save_images: bool) -> bool:
-    if not (out_dir / "cells" / f"{cell.key}.parquet").exists():
-        return False
-    if save_images:
-        return len(list((out_dir / "images" / cell.key).glob("*.png"))) == config.images
-    return True
+def _cell_path(out_dir: Path, cell: Cell, scale: float) -> Path:
+    return out_dir / "cells" / f"{cell.output_name(scale)}.parquet"
+
+
+def _refinement_cells(
+    config: StudyConfig, rates: pd.DataFrame
+) -> list[tuple[Cell, tuple[float, ...]]]:
+    """Tilts to add: halfway between each group's largest passing and next failing tilt."""
+    wanted: dict[Cell, list[float]] = {}
+    keys = ["lighting", "psf_scale", "size_mm", "alpha_deg"]
+    for (lighting, scale, size, alpha), group in rates.groupby(keys, sort=True):
+        group = group.sort_values("phi_deg")
+        passing = group.loc[group["rate"] >= report.THRESHOLD, "phi_deg"]
+        if passing.empty:
+            continue
+        best = float(passing.max())
+        above = group.loc[group["phi_deg"] > best, "phi_deg"]
+        if above.empty or float(above.min()) - best <= config.phi_resolution_deg + 1e-9:
+            continue
+        phi = round((best + float(above.min())) / 2.0, 6)
+        wanted.setdefault(Cell(lighting, size, alpha, phi), []).append(scale)
+    return [(cell, tuple(sorted(scales))) for cell, scales in wanted.items()]
+
+
+def _rates(out_dir: Path, done: list[tuple[Cell, float]]) -> pd.DataFrame:
+    rows = []
+    for cell, scale in done:
+        table = pd.read_parquet(_cell_path(out_dir, cell, scale), columns=["id_ok"])
+        rows.append(
+            {
+                "lighting": cell.lighting,
+                "psf_scale": scale,
+                "size_mm": cell.size_mm,
+                "alpha_deg": cell.alpha_deg,
+                "phi_deg": cell.phi_deg,
+                "rate": float(table["id_ok"].mean()),
+            }
+        )
+    return pd.DataFrame(rows)
 
 
 def run_study(
@@ -72,8 +118,8 @@ def run_study(
 ) -> dict:
     """Run (or resume) the study into ``out_dir`` and return its manifest.
 
-    Finished cells (``cells/<key>.parquet``) are skipped, so rerunning an interrupted command
-    continues it. A folder that holds a study with a different configuration is refused.
+    Finished cells (``cells/<key>_x<scale>.parquet``) are skipped, so rerunning an interrupted
+    command continues it. A folder that holds a study with a different configuration is refused.
     """
     try:
         check_writable(out_dir)
@@ -92,31 +138,35 @@ def run_study(
     out_dir.mkdir(parents=True, exist_ok=True)
     write_json(config_path, config_json)
 
-    # --- Cells
-    cells = config.cells()
-    todo = [c for c in cells if not _cell_done(out_dir, c, config, save_images)]
+    # --- Cells: the grid, then refinement rounds between the last passing and first failing tilt
     threads = 1 if workers > 1 else None
     chosen = init_worker(variant)  # recorded in the manifest; workers are given the same
-    stage = {"render_s": 0.0, "response_s": 0.0, "detect_s": 0.0}
+    stage = {"render_s": 0.0, "optics_s": 0.0, "sensor_s": 0.0, "detect_s": 0.0}
     t_cells = time.perf_counter()
-    tasks = [_CellTask(config, c, out_dir, save_images) for c in todo]
-    for timings in run_tasks(
-        _run_task,
-        tasks,
-        workers,
-        init_worker,
-        (chosen, threads),
-        desc="detectability cells",
-        progress=progress,
-    ):
-        for key in stage:
-            stage[key] += timings[key]
+    plan = [(cell, config.psf_scales) for cell in config.cells()]
+    done: list[tuple[Cell, float]] = []
+    computed = rounds = 0
+    with TaskPool(workers, init_worker, (chosen, threads)) as pool:
+        while plan:
+            tasks = []
+            for cell, scales in plan:
+                todo = tuple(s for s in scales if not _cell_path(out_dir, cell, s).exists())
+                if todo:
+                    tasks.append(_CellTask(config, cell, todo, out_dir, save_images))
+            desc = "detectability cells" if rounds == 0 else f"refining tilts (round {rounds})"
+            for timings in pool.map(_run_task, tasks, desc=desc, progress=progress):
+                for key in stage:
+                    stage[key] += timings[key]
+                computed += len(timings["images"])
+            done += [(cell, s) for cell, scales in plan for s in scales]
+            plan = _refinement_cells(config, _rates(out_dir, done))
+            rounds += 1
     wall["cells_s"] = time.perf_counter() - t_cells
 
     # --- Tables
     t_tab = time.perf_counter()
     images = pd.concat(
-        [pd.read_parquet(out_dir / "cells" / f"{c.key}.parquet") for c in cells], ignore_index=True
+        [pd.read_parquet(_cell_path(out_dir, c, s)) for c, s in done], ignore_index=True
     )
     images = images.sort_values(report.CELL_KEYS + ["image_index"], kind="stable")
     with atomic_path(out_dir / "images.parquet") as tmp:
@@ -124,7 +174,14 @@ def run_study(
     summary = report.summarize(images)
     write_bytes(out_dir / "summary.csv", report.summary_to_csv_bytes(summary))
     max_phi = report.max_phi(summary)
-    write_bytes(out_dir / "max_phi.csv", report.summary_to_csv_bytes(max_phi))
+    write_bytes(out_dir / "max_phi_by_scale.csv", report.summary_to_csv_bytes(max_phi))
+    band = report.band(max_phi)
+    write_bytes(out_dir / "max_phi.csv", report.summary_to_csv_bytes(band))
+    counts = images.groupby(report.CELL_KEYS).size()
+    images_used = {
+        Cell(lg, sz, al, ph).output_name(sc): int(n)
+        for (lg, sc, sz, al, ph), n in counts.items()
+    }
     wall["tables_s"] = time.perf_counter() - t_tab
 
     # --- Plots
@@ -140,21 +197,25 @@ def run_study(
     wall["total_s"] = time.perf_counter() - t0
 
     # --- Manifest
-    n_new = len(todo) * config.images
+    n_images = int(sum(images_used.values()))
     manifest = {
         "study": "detectability",
         "config": config_json,
+        "camera_profile": config.camera.name,
+        "psf_scales": list(config.psf_scales),
         "seed": config.seed,
         "variant": chosen,
         "versions": package_versions(),
         "workers": workers,
-        "cells_total": len(cells),
-        "cells_computed": len(todo),
-        "cells_resumed": len(cells) - len(todo),
-        "images_computed": n_new,
+        "cells_total": len(done),
+        "cells_computed": computed,
+        "cells_resumed": len(done) - computed,
+        "refinement_rounds": rounds - 1,
+        "images_total": n_images,
+        "images_per_cell": dict(sorted(images_used.items())),
         "wall_s": {k: round(v, 3) for k, v in wall.items()},
         "stage_cpu_s": {k: round(v, 3) for k, v in stage.items()},
-        "images_per_s": round(n_new / wall["cells_s"], 1) if n_new else None,
+        "images_per_s": round(n_images / wall["cells_s"], 1) if computed else None,
     }
     write_json(out_dir / "manifest.json", manifest)
     return manifest

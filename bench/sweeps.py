@@ -14,7 +14,11 @@ From a base point (the array's 13.2 mm marker 200 mm away at alpha 40 deg, tilte
     motion blur: the marker moves ``L`` px horizontally in the image during the exposure
     (:func:`motion_blur`);
 ``read_noise_e``
-    sensor noise, as the rms read noise (electrons) of the 6000 e- well.
+    sensor noise, as the rms read noise (electrons) of the camera profile's well.
+
+Images come from the camera twin (``camera``, a :class:`scenes.profile.CameraProfile`, default
+``prototype``): the motion blur acts on the clean radiance, then the profile's optics, sensor
+and stream stages run, the read noise replaced by the point's.
 
 Each distinct crop is rendered once per seed (:func:`clean_render`, composed from
 :mod:`bench.detectability`'s renderer and seeds), ``images`` camera images are drawn from it
@@ -28,9 +32,10 @@ where recall falls below 95 % and whether the seeds agree, :func:`plot_sweeps` d
 
 The default levels were set after a first run with the presets (5 seeds x 20 images):
 
-* alpha: 0..92 deg, plus 93 and 94. No preset loses the marker while it is inside the image
-  circle (93 deg still detected); at 94 deg its far edge (alpha + 1.9 deg) is past the camera's
-  theta_max of 95 deg and every preset fails: a failure of geometry, not of the detector. What
+* alpha: 0..92 deg. On the ``ideal`` camera (image circle to 95 deg) no preset loses the marker
+  while it is inside the image circle (93 deg still detected); at 94 deg its far edge (alpha +
+  1.9 deg) is past theta_max and every preset fails: a failure of geometry, not of the
+  detector. The prototype's image circle ends at 92.5 deg, so the levels now stop at 92. What
   differs along alpha is the pose: ``pose_method="fisheye"`` fails from 90 deg on.
 * phi: 35, 45 and 55 added to resolve the two boundaries (``fast`` 35 -> 40, the others
   50 -> 55).
@@ -68,15 +73,14 @@ from bench.detectability import (  # noqa: E402
     Cell,
     StudyConfig,
     camera_images,
-    carrier_outline,
+    clean_radiance,
     init_worker,
-    renderer_for,
+    render_cell,
 )
 from pipeline.detect import detect_markers  # noqa: E402
 from pipeline.pose import estimate_pose  # noqa: E402
 from pipeline.presets import PipelineConfig  # noqa: E402
-from renderers.response import CameraResponse  # noqa: E402
-from scenes.camera import FisheyeCamera, default_camera  # noqa: E402
+from renderers.camera_twin import optical_image  # noqa: E402
 from scenes.conventions import (  # noqa: E402
     marker_corners_marker,
     rotation_angle_deg,
@@ -84,7 +88,8 @@ from scenes.conventions import (  # noqa: E402
 )
 from scenes.lighting import get_lighting  # noqa: E402
 from scenes.marker import MarkerSpec, check_dictionary  # noqa: E402
-from scenes.study import MAX_PHI_DEG, study_pose  # noqa: E402
+from scenes.profile import CameraProfile, load_profile  # noqa: E402
+from scenes.study import MAX_PHI_DEG  # noqa: E402
 from scenes.validation import FieldError  # noqa: E402
 
 AXES = ("alpha_deg", "phi_deg", "lighting", "blur_px", "read_noise_e")
@@ -109,16 +114,15 @@ class SweepConfig:
     base_phi_deg: float = 30.0
     base_lighting: str = "sun"
     base_blur_px: float = 0.0
-    #: The sensor; its ``read_noise_e`` is the base point's, the noise axis replaces it.
-    response: CameraResponse = field(default_factory=CameraResponse)
     size_mm: float = 13.2
     distance_mm: float = 200.0
     dictionary: str = "4x4_50"
     marker_id: int = 0
-    camera: FisheyeCamera = field(default_factory=default_camera)
+    #: The camera twin; its ``sensor.read_noise_e`` is the base point's, the noise axis replaces it.
+    camera: CameraProfile = field(default_factory=lambda: load_profile("prototype"))
     # --- axes: each varies one thing from the base point
     alphas_deg: tuple[float, ...] = (
-        0.0, 20.0, 40.0, 60.0, 70.0, 80.0, 85.0, 88.0, 90.0, 92.0, 93.0, 94.0
+        0.0, 20.0, 40.0, 60.0, 70.0, 80.0, 85.0, 88.0, 90.0, 91.0, 92.0
     )  # fmt: skip
     alpha_axis_phi_deg: float = 0.0
     phis_deg: tuple[float, ...] = (
@@ -167,7 +171,9 @@ class SweepConfig:
                 fail(name, f"{value!r}: must be a number")
             object.__setattr__(self, name, float(value))
 
-        theta_max = self.camera.theta_max_deg
+        if not isinstance(self.camera, CameraProfile):
+            fail("camera", f"{self.camera!r}: must be a CameraProfile")
+        theta_max = self.camera.lens.theta_max_deg
         for name, values in (
             ("alphas_deg", self.alphas_deg),
             ("base_alpha_deg", (self.base_alpha_deg,)),
@@ -203,7 +209,9 @@ class SweepConfig:
             fail("dictionary", str(exc))
 
     def to_json(self) -> dict:
-        return dataclasses.asdict(self)
+        out = dataclasses.asdict(self)
+        out["camera"] = self.camera.to_json()
+        return out
 
     def points(self) -> list[SweepPoint]:
         """Every (axis, level) of the sweep as the scene and sensor it describes."""
@@ -212,7 +220,7 @@ class SweepConfig:
             "alpha_deg": self.base_alpha_deg,
             "phi_deg": self.base_phi_deg,
             "blur_px": self.base_blur_px,
-            "read_noise_e": float(self.response.read_noise_e),
+            "read_noise_e": float(self.camera.sensor.read_noise_e),
         }
         # A blurred crop is wider by half the smear; the blur axis renders one crop big enough
         # for its longest smear, shared by its levels.
@@ -319,11 +327,8 @@ def motion_blur(radiance: np.ndarray, length_px: float) -> np.ndarray:
 # --- Rendering --------------------------------------------------------------------------------
 
 
-def _study(config: SweepConfig, read_noise_e: float | None = None) -> StudyConfig:
-    """The detectability study's config for one point: its renderer cache and camera response."""
-    response = config.response
-    if read_noise_e is not None:
-        response = dataclasses.replace(response, read_noise_e=read_noise_e)
+def _study(config: SweepConfig) -> StudyConfig:
+    """The detectability study's config for the sweep's marker: its renderer cache and seeds."""
     return StudyConfig(
         sizes_mm=(config.size_mm,),
         alphas_deg=(config.base_alpha_deg,),
@@ -335,50 +340,29 @@ def _study(config: SweepConfig, read_noise_e: float | None = None) -> StudyConfi
         marker_id=config.marker_id,
         spp=config.spp,
         camera=config.camera,
-        response=response,
     )
 
 
 def clean_render(config: SweepConfig, point: SweepPoint, seed: int) -> dict:
-    """The clean linear radiance of one point's crop, before any camera response.
+    """The clean linear radiance of one point's crop, before any camera stage.
 
-    :func:`bench.detectability.cell_images` goes from the render straight to camera images; a
-    sweep needs the radiance in between (motion blur acts on it) and a camera response of its
-    own (the noise axis), so this composes the same steps: the study's pose and crop (with
-    ``point.margin_px``, framed by :func:`carrier_outline`), its cached renderer and its seeds
-    (:meth:`Cell.seed_sequence`).
-
-    Returns ``window``, ``rendered``, ``radiance`` ((H, W, 3), or (N, H, W, 3) under a canopy,
-    one shadow position per image), ``rng`` (the noise generator, already advanced past the
-    canopy draws: copy it for each set of images) and ``T_cam_marker``.
+    The study's pose, crop (with ``point.margin_px``), renderer and seeds
+    (:func:`bench.detectability.render_cell`); a sweep needs the radiance itself because motion
+    blur acts on it before the optics. Returns ``window``, ``radiance`` ((H, W, 3), or
+    (N, H, W, 3) under a canopy, one shadow position per image), ``rng`` (the noise generator,
+    already advanced past the canopy draws: copy it for each set of images) and
+    ``T_cam_marker``.
     """
-    from renderers.fisheye import canopy_visibility
-    from renderers.window import Window
-
     study = _study(config)
-    camera, lighting = config.camera, get_lighting(point.lighting)
-    T_cam_marker = study_pose(point.alpha_deg, point.phi_deg, config.distance_mm)
-    spec = MarkerSpec(config.dictionary, config.marker_id, config.size_mm)
-    window = Window.around(
-        camera.project(carrier_outline(T_cam_marker, spec)), camera, margin_px=point.margin_px
-    )
-    renderer, canopy = renderer_for(study, point.lighting)
-    renderer.scene.set_pose(T_cam_marker, config.size_mm)
     cell = Cell(point.lighting, config.size_mm, point.alpha_deg, point.phi_deg)
-    render_seed, noise_seed = cell.seed_sequence(seed).generate_state(2)
-    rendered = renderer.render(window, seed=int(render_seed) % (1 << 31))
-    rng = np.random.default_rng(noise_seed)
-    if canopy is not None:
-        visibility = canopy_visibility(canopy, lighting, rendered, config.images, rng)
-        radiance = rendered.radiance(visibility)
-    else:
-        radiance = rendered.radiance()
+    render = render_cell(study, cell, margin_px=point.margin_px)
+    rng = np.random.default_rng(cell.seed_sequence(seed).generate_state(2)[1])
+    radiance = clean_radiance(study, render, point.lighting, config.images, rng)
     return {
-        "window": window,
-        "rendered": rendered,
+        "window": render.window,
         "radiance": radiance,
         "rng": rng,
-        "T_cam_marker": T_cam_marker,
+        "T_cam_marker": render.T_cam_marker,
     }
 
 
@@ -399,7 +383,7 @@ def score_images(
     over the 4 corners of the distance (px) to the projected true corner; medians are over the
     images where the right id was found (pose errors: where the pose could also be solved).
     """
-    camera = config.camera
+    camera = config.camera.lens
     gt_px = camera.project(transform_points(T_gt, marker_corners_marker(config.size_mm)))
     hits = false_ids = pose_failures = 0
     corner_err, rot_err, trans_err = [], [], []
@@ -478,17 +462,26 @@ def run_sweeps(
         groups.setdefault(point.render_key, []).append(point)
     jobs = [(seed, points) for seed in range(config.seeds) for points in groups.values()]
 
+    study = _study(config)
     rows = []
     for seed, group in tqdm(jobs, desc="sweep renders", unit="render", disable=not progress):
         clean = clean_render(config, group[0], seed)
         window = clean["window"]
+        origin = (window.x0, window.y0)
         for point in group:
-            blurred = motion_blur(clean["radiance"], point.blur_px)
+            profile = dataclasses.replace(
+                config.camera,
+                sensor=dataclasses.replace(config.camera.sensor, read_noise_e=point.read_noise_e),
+            )
+            irradiance = optical_image(
+                motion_blur(clean["radiance"], point.blur_px), profile, origin
+            )
             images = camera_images(
-                _study(config, point.read_noise_e),
+                study,
+                profile,
                 point.lighting,
-                clean["rendered"],
-                blurred,
+                irradiance,
+                origin,
                 config.images,
                 copy.deepcopy(clean["rng"]),  # the same noise draw for every level sharing it
             )

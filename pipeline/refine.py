@@ -82,7 +82,8 @@ def _srgb_to_linear_lut() -> np.ndarray:
     return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4).astype(np.float32)
 
 
-_LUTS = {"srgb": _srgb_to_linear_lut(), "linear": np.arange(256, dtype=np.float32) / 255.0}
+#: 8-bit code -> linear light, per transfer curve (the inverse of the camera's curve).
+LINEAR_LUTS = {"srgb": _srgb_to_linear_lut(), "linear": np.arange(256, dtype=np.float32) / 255.0}
 
 
 class _RefineError(Exception):
@@ -312,7 +313,7 @@ def refine_corners_by_edges(
     offset = np.asarray(offset_px, dtype=float).reshape(2)
     try:
         with np.errstate(all="ignore"):  # failures are detected explicitly, not by warnings
-            corners = _refine(image, start, camera, int(modules), offset, _LUTS[transfer])
+            corners = _refine(image, start, camera, int(modules), offset, LINEAR_LUTS[transfer])
     except (_RefineError, np.linalg.LinAlgError, cv2.error):
         return start.copy()
     if np.any(np.linalg.norm(corners - start, axis=1) > max_shift_px):

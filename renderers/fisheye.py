@@ -18,8 +18,10 @@ Output is linear RGB radiance, float32. Pixels outside the image circle are blac
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
+import cv2
 import drjit as dr
 import mitsuba as mi
 import numpy as np
@@ -33,6 +35,10 @@ from scenes.lighting import Lighting, canopy_frame
 #: Rays are traced in chunks of exactly this size (the last one padded): a new wavefront size
 #: compiles a new kernel (~130 ms here), one fixed size compiles once and then reuses it.
 CHUNK_RAYS = 1 << 17
+#: Adaptive anti-aliasing: a pixel takes every sample where its 3 x 3 neighbourhood's first-pass
+#: samples spread by more than this fraction of their light (edges); elsewhere (flat patches,
+#: the smooth sky) its first samples stand for all, within this fraction.
+ADAPTIVE_TOLERANCE = 1e-3
 
 
 @dataclass
@@ -146,10 +152,18 @@ class FisheyeRenderer:
         spp: int = 16,
         shadow_spp: int = 4,
         sky: str = "irradiance",
+        adaptive: bool = True,
     ) -> None:
         """``sky``: ``"irradiance"`` (exact and noise-free where nothing occludes the sky, as for
         the study's lone marker; :mod:`renderers.sky_irradiance`) or ``"integrator"`` (Mitsuba's
-        ``direct`` integrator, Monte Carlo, correct with occluders)."""
+        ``direct`` integrator, Monte Carlo, correct with occluders).
+
+        ``adaptive`` (with the noise-free ``irradiance`` sky, a square spp of even side and
+        ``shadow_spp`` at most spp / 4):
+        trace one stratified sample per 2 x 2 block of sub-cells first, and the other samples
+        only in pixels where those disagree, and their neighbours. Light on a flat patch is
+        constant, so a pixel whose samples agree holds the full render's value exactly; only
+        edges need every sample (see the tests for the measured difference)."""
         if spp < 1 or shadow_spp < 1:
             raise ValueError(f"spp={spp}, shadow_spp={shadow_spp}: both must be >= 1")
         if sky not in SKY_METHODS:
@@ -159,6 +173,14 @@ class FisheyeRenderer:
         self.spp = spp
         self.shadow_spp = shadow_spp
         self.sky = sky
+        side = math.isqrt(spp)
+        self.adaptive = (
+            adaptive
+            and sky == "irradiance"
+            and side * side == spp
+            and side % 2 == 0
+            and shadow_spp <= spp // 4  # the canopy's shadow rays start from first-pass hits
+        )
         self.integrator = mi.load_dict({"type": "direct"}) if sky == "integrator" else None
         self._trace = _trace_jit if _is_jit() else _trace_scalar
 
@@ -172,40 +194,77 @@ class FisheyeRenderer:
         lighting = self.scene.lighting
         rng = np.random.default_rng(seed)
         h, w, s = window.height, window.width, self.spp
-        keep = np.linspace(0, s - 1, min(self.shadow_spp, s)).round().astype(int)
+        first = _first_pass(s) if self.adaptive else np.arange(s)
+        keep = first[np.linspace(0, len(first) - 1, min(self.shadow_spp, len(first))).round()
+                     .astype(int)]  # fmt: skip
         sky = np.zeros((h, w, 3), np.float32)
         sun = np.zeros_like(sky)
         shadow = np.full((h, w, len(keep), 3), np.nan, np.float32) if lighting.canopy else None
-        rows = max(1, CHUNK_RAYS // (w * s))  # row bands bound memory on full frames
-        chunk = 0
+        # Row bands bound memory on full frames; a band's first pass fills about one chunk.
+        rows = max(1, CHUNK_RAYS // (w * len(first)))
+        counter = [0]
         for r0 in range(0, h, rows):
             band = Window(window.x0, window.y0 + r0, w, min(rows, h - r0))
-            dirs, valid = self.camera.unproject(band.sample_positions(s, rng).reshape(-1, 2))
-            traced = {k: np.zeros((len(dirs), 3), np.float32) for k in TRACED}
+            positions = band.sample_positions(s, rng)  # (bh, w, s, 2): all samples, drawn once
+            traced = {k: np.zeros((*positions.shape[:3], 3), np.float32) for k in TRACED}
             traced["position"][:] = np.nan
-            idx = np.flatnonzero(valid)
-            for start in range(0, len(idx), CHUNK_RAYS):
-                part = idx[start : start + CHUNK_RAYS]
-                out = self._trace(
-                    self.scene.scene,
-                    self.integrator,
-                    lighting,
-                    _pad(dirs[part]),
-                    (seed * 7919 + chunk) & 0xFFFFFFFF,
-                )
-                chunk += 1
-                for k in TRACED:
-                    traced[k][part] = out[k][: len(part)]
-            if self.sky == "irradiance":
-                traced["sky"] = self._sky_radiance(dirs, valid, traced)
+            todo = np.zeros(positions.shape[:3], bool)
+            todo[:, :, first] = True
+            self._trace_samples(positions, todo, traced, seed, counter)
+            if len(first) < s:
+                # An edge between any two first-pass samples of a 3 x 3 neighbourhood flags its
+                # pixels: an edge passing between one pixel's samples and the next pixel's is
+                # caught too, not only one crossing a pixel's own samples.
+                light = (traced["sky"][:, :, first] + traced["sun"][:, :, first]).sum(axis=-1)
+                box = np.ones((3, 3), np.uint8)
+                hi = cv2.dilate(light.max(axis=2), box, borderType=cv2.BORDER_REPLICATE)
+                lo = cv2.erode(light.min(axis=2), box, borderType=cv2.BORDER_REPLICATE)
+                edge = hi - lo > ADAPTIVE_TOLERANCE * (np.abs(hi) + 1e-12)
+                rest = np.zeros_like(todo)
+                rest[edge] = True
+                rest[:, :, first] = False
+                self._trace_samples(positions, rest, traced, seed, counter)
+                for k in ("sky", "sun"):  # agreeing pixels: their first samples stand for all
+                    mean_first = traced[k][:, :, first].mean(axis=2, keepdims=True)
+                    traced[k][~edge] = np.broadcast_to(mean_first, traced[k].shape)[~edge]
             rows_here = slice(r0, r0 + band.height)
-            shape = (band.height, w, s, 3)
-            sky[rows_here] = traced["sky"].reshape(shape).mean(axis=2)
-            sun[rows_here] = traced["sun"].reshape(shape).mean(axis=2)
+            sky[rows_here] = traced["sky"].mean(axis=2)
+            sun[rows_here] = traced["sun"].mean(axis=2)
             if shadow is not None:
-                shadow[rows_here] = traced["position"].reshape(shape)[:, :, keep]
+                shadow[rows_here] = traced["position"][:, :, keep]
         inside = self.camera.unproject(window.pixel_centres())[1]
         return RenderedWindow(window, sky, sun, shadow, inside)
+
+    def _trace_samples(
+        self,
+        positions: np.ndarray,
+        todo: np.ndarray,
+        traced: dict[str, np.ndarray],
+        seed: int,
+        counter: list[int],
+    ) -> None:
+        """Trace the samples marked in ``todo`` ((bh, w, s) bool) into ``traced`` in place."""
+        dirs, valid = self.camera.unproject(positions[todo])
+        lighting = self.scene.lighting
+        out_all = {k: np.zeros((len(dirs), 3), np.float32) for k in TRACED}
+        out_all["position"][:] = np.nan
+        idx = np.flatnonzero(valid)
+        for start in range(0, len(idx), CHUNK_RAYS):
+            part = idx[start : start + CHUNK_RAYS]
+            out = self._trace(
+                self.scene.scene,
+                self.integrator,
+                lighting,
+                _pad(dirs[part]),
+                (seed * 7919 + counter[0]) & 0xFFFFFFFF,
+            )
+            counter[0] += 1
+            for k in TRACED:
+                out_all[k][part] = out[k][: len(part)]
+        if self.sky == "irradiance":
+            out_all["sky"] = self._sky_radiance(dirs, valid, out_all)
+        for k in TRACED:
+            traced[k][todo] = out_all[k]
 
     def _sky_radiance(
         self, dirs: np.ndarray, valid: np.ndarray, traced: dict[str, np.ndarray]
@@ -221,6 +280,14 @@ class FisheyeRenderer:
         lum[escaped] = sky.radiance(dirs[escaped])
         albedo = np.where(hit[:, None], traced["albedo"], 1.0)
         return albedo * lum[:, None] * color
+
+
+def _first_pass(spp: int) -> np.ndarray:
+    """Sample indices of the adaptive first pass: one per 2 x 2 block of the stratified n x n
+    sub-cells (:meth:`Window.sample_positions` numbers cell (col, row) as row * n + col)."""
+    n = math.isqrt(spp)
+    col, row = np.arange(spp) % n, np.arange(spp) // n
+    return np.flatnonzero((col % 2 == 0) & (row % 2 == 0))
 
 
 def _pad(rays: np.ndarray) -> np.ndarray:

@@ -1,9 +1,10 @@
-"""Camera/sensor response: clean linear radiance in, the 8-bit images of a real camera out.
+"""Camera/sensor response: clean linear luminance in, the 8-bit grey images of a camera out.
 
-A renderer produces one clean luminance image (float, linear, 1.0 = full scale of the sensor at
-exposure 1). The real fisheye camera adds lens and sensor effects the marker pipeline has to cope
-with; this module adds them, drawing many noisy images from one clean render so that noise
-statistics cost no extra rendering. Everything is vectorized over the batch of N images.
+The grey-only camera model of the earlier studies, kept for its callers; it is a thin layer over
+the camera twin's stages (:mod:`renderers.optics`, :mod:`renderers.sensor`,
+:mod:`renderers.stream`), which :mod:`renderers.camera_twin` applies to colour radiance from a
+camera profile. A renderer produces one clean luminance image (float, linear, 1.0 = full scale of
+the sensor at exposure 1); many noisy images are drawn from it, vectorized over the batch.
 
 Stages, in order (the physical order of a camera):
 
@@ -12,10 +13,9 @@ Stages, in order (the physical order of a camera):
    of full scale (one multiplier for the whole batch, see :func:`exposure_for`). Pixels outside
    ``valid`` are set to 0 (no light outside the image circle).
 2. **vignetting**: relative illumination ``max(0, 1 - vignetting * (theta / theta_max)**2)``.
-3. **lens blur**: Gaussian, sigma growing from ``blur_sigma_centre_px`` on the axis to
-   ``blur_sigma_edge_px`` at ``theta_max`` as ``(theta / theta_max)**2``. Computed by blurring at
-   sigma levels 0.25 px apart (32 at most) and interpolating linearly per pixel by its sigma;
-   one blur when the sigma is uniform.
+3. **lens blur**: isotropic Gaussian, sigma growing from ``blur_sigma_centre_px`` on the axis to
+   ``blur_sigma_edge_px`` at ``theta_max`` as ``(theta / theta_max)**2``: the twin's
+   field-dependent PSF (:func:`renderers.optics.apply_psf`), one convolution when uniform.
 4. **shot noise**: photo-electrons ``~ Poisson(exposed * full_well_e)``, the well clipping at
    ``full_well_e``. Exact Poisson below 100 e-; above, the Gaussian limit (skewness < 0.1).
 5. **read noise**: Gaussian, ``read_noise_e`` rms, then the signal clipped to [0, 1] full scale.
@@ -24,35 +24,25 @@ Stages, in order (the physical order of a camera):
    except within 1/131070 of full scale of a rounding threshold, where it may be one code off).
 8. **JPEG** (optional): each image encoded and decoded as the camera's MJPEG stream would be.
 
-Finally pixels outside ``valid`` are 0 in the output.
-
-Steps 1-3 run once per clean image; noise is drawn per output image. Gaussian deviates come from
-a 65536-entry inverse-CDF table indexed by uniform 16-bit integers from the caller's generator:
-about 4x faster than ``Generator.standard_normal``, exact at every 1/65536 quantile (tails
-truncated at 4.3 sigma, variance normalized to 1). Output is deterministic for a given rng state.
+Finally pixels outside ``valid`` are 0 in the output. Steps 1-3 run once per clean image; noise
+is drawn per output image (:func:`renderers.sensor.photosite_signal`). Output is deterministic
+for a given rng state.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
-from functools import cache
-from statistics import NormalDist
 
-import cv2
 import numpy as np
 
-GAMMAS = ("srgb", "linear")
-#: Rec. 709 / sRGB luminance weights: the camera response works on the grey the detector sees.
-LUMINANCE_RGB = np.array([0.2126, 0.7152, 0.0722])
+from renderers import optics, sensor, stream
+from renderers.sensor import LUMINANCE_RGB
+from scenes.profile import Stream
 
-#: Below this many expected electrons shot noise is drawn exactly from a Poisson distribution.
-POISSON_EXACT_BELOW_E = 100.0
-#: Largest spacing of the sigma levels used for the spatially varying blur (px).
-BLUR_LEVEL_STEP_PX = 0.25
-_MAX_BLUR_LEVELS = 32
-_CV_MAX_CHANNELS = 512
-_LUT_SIZE = 65536  # linear signal -> 8-bit code table; indices are uint16
+__all__ = ["GAMMAS", "LUMINANCE_RGB", "CameraResponse", "apply_response", "exposure_for"]
+
+GAMMAS = ("srgb", "linear")
 
 
 def _is_number(value: object) -> bool:
@@ -175,33 +165,16 @@ def exposure_for(
 # --- Optics ---------------------------------------------------------------------------------
 
 
-def _gaussian_blur(stack: np.ndarray, sigma: float) -> np.ndarray:
-    """Blur each image of an (N, H, W) stack; images travel as channels (at most 512 per call)."""
-    if sigma <= 0:
-        return stack
-    hwc = np.ascontiguousarray(np.moveaxis(stack, 0, -1))
-    out = np.empty_like(hwc)
-    for start in range(0, hwc.shape[-1], _CV_MAX_CHANNELS):
-        chunk = np.ascontiguousarray(hwc[..., start : start + _CV_MAX_CHANNELS])
-        blurred = cv2.GaussianBlur(chunk, (0, 0), sigmaX=sigma, sigmaY=sigma)
-        out[..., start : start + _CV_MAX_CHANNELS] = blurred.reshape(chunk.shape)
-    return np.moveaxis(out, -1, 0)
+def _blur_field(response: CameraResponse, rel2: np.ndarray | None) -> optics.PsfField:
+    """The isotropic blur as a PSF field: sigma from the centre value to the edge value."""
+    c, e = response.blur_sigma_centre_px, response.blur_sigma_edge_px
+    sigma = None if c == e else c + (e - c) * np.minimum(rel2, 1.0)
 
+    def field(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        s = np.full(np.shape(x), c, dtype=float) if sigma is None else sigma[y, x]
+        return s, s, np.zeros(np.shape(x))
 
-def _varying_blur(stack: np.ndarray, sigma_map: np.ndarray) -> np.ndarray:
-    """Blur with a per-pixel sigma: blurs at sigma levels, blended linearly per pixel."""
-    lo, hi = float(sigma_map.min()), float(sigma_map.max())
-    if hi - lo < 1e-6:
-        return _gaussian_blur(stack, lo)
-    n_levels = min(_MAX_BLUR_LEVELS, max(2, math.ceil((hi - lo) / BLUR_LEVEL_STEP_PX) + 1))
-    levels = np.linspace(lo, hi, n_levels)
-    pos = (sigma_map - lo) / (levels[1] - levels[0])  # fractional level index per pixel
-    out = np.zeros_like(stack)
-    for k, sigma in enumerate(levels):
-        weight = np.clip(1.0 - np.abs(pos - k), 0.0, None).astype(np.float32)
-        if weight.any():
-            out += weight * _gaussian_blur(stack, float(sigma))
-    return out
+    return field
 
 
 def _optics(
@@ -210,7 +183,7 @@ def _optics(
     theta_rad: np.ndarray | None,
     theta_max_rad: float | None,
 ) -> np.ndarray:
-    """Vignetting then lens blur on the exposed clean stack."""
+    """Vignetting then lens blur on the exposed clean (N, H, W, 1) stack."""
     rel2 = None
     if response.needs_theta:
         if theta_rad is None or theta_max_rad is None:
@@ -221,88 +194,12 @@ def _optics(
             raise ValueError(f"theta_max_rad={theta_max_rad!r}: must be a finite number > 0")
         rel2 = np.square(np.asarray(theta_rad, dtype=np.float64) / theta_max_rad)
     if response.vignetting > 0:
-        illum = np.clip(1.0 - response.vignetting * rel2, 0.0, None).astype(np.float32)
-        clean = clean * illum
+        clean = optics.relative_illumination(
+            clean, np.clip(1.0 - response.vignetting * rel2, 0.0, None)
+        )
     if response.blur_on:
-        c, e = response.blur_sigma_centre_px, response.blur_sigma_edge_px
-        if c == e:
-            clean = _gaussian_blur(clean, c)
-        else:
-            clean = _varying_blur(clean, c + (e - c) * np.minimum(rel2, 1.0))
+        clean = optics.apply_psf(clean, _blur_field(response, rel2))
     return clean
-
-
-# --- Sensor ---------------------------------------------------------------------------------
-
-
-@cache
-def _normal_table() -> np.ndarray:
-    """Standard normal quantiles at the 65536 cell midpoints, variance normalized to 1."""
-    nd = NormalDist()
-    half = np.array([nd.inv_cdf((i + 0.5) / 65536.0) for i in range(32768)])
-    table = np.concatenate([half, -half[::-1]])
-    table /= np.sqrt(np.mean(np.square(table)))
-    table = table.astype(np.float32)
-    table.flags.writeable = False
-    return table
-
-
-def _srgb_encode(x: np.ndarray) -> np.ndarray:
-    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1.0 / 2.4) - 0.055)
-
-
-@cache
-def _code_lut(gamma: str) -> np.ndarray:
-    """8-bit code of linear ``i / 65535`` after the transfer curve, for i in 0..65535."""
-    x = np.arange(_LUT_SIZE) / (_LUT_SIZE - 1)
-    lut = np.rint(255.0 * (x if gamma == "linear" else _srgb_encode(x))).astype(np.uint8)
-    lut.flags.writeable = False
-    return lut
-
-
-def _quantize(x: np.ndarray, gamma: str) -> np.ndarray:
-    """uint8 codes of linear x (float32, overwritten): clip to [0, 1], transfer curve, round."""
-    np.clip(x, 0.0, 1.0, out=x)
-    x *= np.float32(_LUT_SIZE - 1)
-    x += np.float32(0.5)
-    return _code_lut(gamma).take(x.astype(np.uint16))
-
-
-def _sensor(
-    clean: np.ndarray, response: CameraResponse, rng: np.random.Generator, n_out: int
-) -> np.ndarray:
-    """Shot noise, well clipping, read noise; linear signal in full-scale units, (n_out, H, W)."""
-    fw = float(response.full_well_e)
-    read = response.read_noise_e > 0
-    table = _normal_table()
-    draws = rng.integers(0, _LUT_SIZE, size=(1 + read, n_out, *clean.shape[1:]), dtype=np.uint16)
-    # Gaussian limit of shot noise, in full-scale units: sd = sqrt(e) / fw = sqrt(clean / fw).
-    x = table.take(draws[0])
-    x *= np.sqrt(clean * np.float32(1.0 / fw))
-    x += clean
-    # Exact Poisson where few electrons are expected (same pixels in every image of the batch).
-    lam = clean * np.float32(fw)
-    low = (lam > 0) & (lam < POISSON_EXACT_BELOW_E)
-    if low.any():
-        if clean.shape[0] == 1:
-            lam_low = lam[0][low[0]]
-            x[:, low[0]] = rng.poisson(lam_low, size=(n_out, lam_low.size)) / fw
-        else:
-            x[low] = rng.poisson(lam[low]) / fw
-    np.minimum(x, np.float32(1.0), out=x)  # the well is full at full scale
-    if read:
-        x += (table * np.float32(response.read_noise_e / fw)).take(draws[1])
-    return x
-
-
-def _jpeg(images: np.ndarray, quality: int) -> np.ndarray:
-    out = np.empty_like(images)
-    for i, img in enumerate(images):
-        ok, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
-        if not ok:
-            raise RuntimeError("JPEG encoding failed")
-        out[i] = cv2.imdecode(buf, cv2.IMREAD_GRAYSCALE)
-    return out
 
 
 def apply_response(
@@ -341,14 +238,16 @@ def apply_response(
         valid_map = valid_map.astype(bool, copy=False)
 
     exposure = _exposure(clean, response, valid_map)
-    clean = clean * np.float32(exposure)
+    clean = (clean * np.float32(exposure))[..., None]
     if valid_map is not None:
-        clean[:, ~valid_map] = 0.0
+        clean = optics.image_circle(clean, valid_map)
     clean = _optics(clean, response, theta, theta_max_rad)
-    signal = _sensor(clean, response, rng, n_out)
-    images = _quantize(signal, response.gamma)
+    signal = sensor.photosite_signal(
+        clean[..., 0], response.full_well_e, response.read_noise_e, 0.0, rng, n_out
+    )
+    images = sensor.quantize(signal, response.gamma)
     if response.jpeg_quality is not None:
-        images = _jpeg(images, response.jpeg_quality)
+        images = stream.grey_images(images, Stream(codec="mjpeg", quality=response.jpeg_quality))
     if valid_map is not None:
         images[:, ~valid_map] = 0
     return images

@@ -52,6 +52,18 @@ class Window:
         hi = np.minimum(hi, [camera.width_px - 1, camera.height_px - 1]).astype(int)
         return cls(int(lo[0]), int(lo[1]), int(hi[0] - lo[0] + 1), int(hi[1] - lo[1] + 1))
 
+    def aligned(self, grid_px: int, camera: FisheyeCamera) -> Window:
+        """The smallest window holding this one whose edges lie on multiples of ``grid_px``
+        (clipped to the image): an MJPEG block grid or a Bayer tile, so that a crop sees the
+        same blocks and colour phase as the full frame."""
+        if grid_px < 1:
+            raise ValueError(f"grid_px={grid_px}: must be >= 1")
+        x0 = self.x0 - self.x0 % grid_px
+        y0 = self.y0 - self.y0 % grid_px
+        x1 = min(camera.width_px, -(-(self.x0 + self.width) // grid_px) * grid_px)
+        y1 = min(camera.height_px, -(-(self.y0 + self.height) // grid_px) * grid_px)
+        return Window(x0, y0, x1 - x0, y1 - y0)
+
     @property
     def shape(self) -> tuple[int, int]:
         return self.height, self.width

@@ -1,31 +1,289 @@
 """Fisheye camera models, exact past 90 degrees, shared by renderer, labels and pipeline.
 
-Both models are radially symmetric: a ray at angle ``theta`` from the optical axis lands at
-normalized radius ``d(theta)`` and is scaled by the focal lengths into pixels:
+Every model is radially symmetric in normalized coordinates ``m``: a ray at angle ``theta`` from
+the optical axis and azimuth ``phi`` lands at ``m = d(theta) (cos phi, sin phi)``, and
 
-    equidistant      d(theta) = theta
-    kannala_brandt   d(theta) = theta * (1 + k1 theta^2 + k2 theta^4 + k3 theta^6 + k4 theta^8)
+    pixel = [[fx, shear0], [shear1, fy]] @ m + (cx, cy)
+
+(``shear`` is zero except for OCamCalib's affine stretch). With ``s, c = sin(theta), cos(theta)``
+(a unit ray), the radial functions ``d(theta)`` are, as published:
+
+    equidistant      theta
+    kannala_brandt   theta (1 + k1 theta^2 + k2 theta^4 + k3 theta^6 + k4 theta^8)   (k1..k4)
+    double_sphere    s / (alpha sqrt(s^2 + (xi + c)^2) + (1 - alpha)(xi + c))         (xi, alpha)
+                     Usenko, Demmel, Cremers 2018, "The Double Sphere Camera Model"
+    eucm             s / (alpha sqrt(beta s^2 + c^2) + (1 - alpha) c)                  (alpha, beta)
+                     Khomutenko, Garcia, Martinet 2016, "An enhanced unified camera model"
+    ucm              s / (c + xi)   (Mei and Rives 2007, unified model)                (xi,)
+    ocamcalib        rho / -a0, where the ray (rho, -P(rho)) makes the angle theta,
+                     P(rho) = a0 + a1 rho + ... + aN rho^N (Scaramuzza 2006, OCamCalib)  (a0..aN)
 
 The Kannala-Brandt form is OpenCV's ``cv2.fisheye`` model, but OpenCV computes
-``theta = atan(r / z)`` and so breaks at 90 degrees; here ``theta = atan2(r, z)``, which is valid
-up to ``theta_max``. Frames and pixel centres follow :mod:`scenes.conventions`.
+``theta = atan(r / z)`` and so breaks at 90 degrees; here ``theta = atan2(r, z)``.
+
+OCamCalib in these terms (from its ``ocam_functions.c`` ``cam2world``/``world2cam`` and the
+Matlab ``export_data.m`` that writes ``calib_results.txt``): a pixel is ``(row, col)`` counted
+from 0 (the file's centre ``xc yc`` is row, column, already shifted from Matlab's 1-based
+pixels), so pixel centres sit on integers as here. ``[row - xc; col - yc] = [[c, d], [e, 1]] @
+(u, v)``, ``rho = |(u, v)|`` and the ray is ``(u, v, P(rho))`` in OCamCalib's frame: x along the
+rows (down), y along the columns (right), z backwards (a0 < 0, so forward rays have z < 0).
+Ours is x right, y down, z forward: ``(x, y, z) = (v, u, -P(rho))``. Hence, scaling by
+``S = -a0`` so that ``d(theta) ~ theta`` near the axis like every other model:
+``fx = S, fy = c S, shear = (e S, d S), cx = yc, cy = xc`` and ``rho = S |m|``.
+
+Projection and unprojection are exact: closed forms for the double sphere, EUCM and UCM
+unprojection (from the papers), Newton's method to machine precision otherwise (safeguarded by a
+bracket, started from a table). Round trips hold to 1e-9 px and 1e-9 rad except within about
+1e-6 rad of a fold (where d'(theta) = 0 no inverse is better conditioned).
+
+Each model is valid up to its own limit ``theta_valid_max`` (the first angle where ``d(theta)``
+stops strictly increasing or its denominator reaches 0): closed forms for UCM, EUCM and the
+double sphere, polynomial roots polished by Newton for Kannala-Brandt and OCamCalib. The
+double-sphere limit is the exact one (the second sphere's UCM condition mapped back to the first
+sphere): the set Omega published by Usenko et al. (z > -w2 |p|) differs from it, e.g. 125.23 deg
+against 126.12 deg for the TUM-VI lens, and allows angles past the pole of the denominator for
+xi < 0 with small alpha. ``theta_max_deg`` is the image-circle limit, at most the model's limit.
+Frames and pixel centres follow :mod:`scenes.conventions`.
 """
 
 from __future__ import annotations
 
+import functools
 import math
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 from typing import Any
 
+import cv2
 import numpy as np
 
-MODELS = ("equidistant", "kannala_brandt")
-_NEWTON_STEPS = 30
+#: Parameter names per model (``ocamcalib``: a0, a1, ... as many as given).
+PARAM_NAMES: dict[str, tuple[str, ...]] = {
+    "equidistant": (),
+    "kannala_brandt": ("k1", "k2", "k3", "k4"),
+    "double_sphere": ("xi", "alpha"),
+    "eucm": ("alpha", "beta"),
+    "ucm": ("xi",),
+    "ocamcalib": (),
+}
+MODELS = tuple(PARAM_NAMES)
+MAX_OCAM_COEFFS = 64  # OCamCalib's own MAX_POL_LENGTH
+OPENCV_FIT_MAX_DEG = 89.0  # cv2.fisheye computes theta = atan(r / z): it breaks at 90 degrees
+_TABLE_SIZE = 2049
+_MAX_ITER = 100
+
+
+# --- Radial functions -------------------------------------------------------------------------
+
+
+def _poly(coeffs: tuple[float, ...], x: np.ndarray) -> np.ndarray:
+    """sum_i coeffs[i] x^i (Horner)."""
+    out = np.zeros_like(x) + coeffs[-1]
+    for c in reversed(coeffs[:-1]):
+        out = out * x + c
+    return out
+
+
+def _poly_derivative(coeffs: tuple[float, ...]) -> tuple[float, ...]:
+    return tuple(i * c for i, c in enumerate(coeffs))[1:] or (0.0,)
+
+
+def _kb_coeffs(params: tuple[float, ...]) -> tuple[float, ...]:
+    """d(theta) = sum_i c_i theta^i of Kannala-Brandt (odd powers up to 9)."""
+    k1, k2, k3, k4 = params
+    return (0.0, 1.0, 0.0, k1, 0.0, k2, 0.0, k3, 0.0, k4)
+
+
+def _closed_radius(model: str, params: tuple[float, ...], theta: np.ndarray) -> np.ndarray:
+    """d(theta) for the models with a closed-form projection (all but OCamCalib)."""
+    if model == "equidistant":
+        return np.array(theta, dtype=float, copy=True)
+    if model == "kannala_brandt":
+        return _poly(_kb_coeffs(params), theta)
+    s, c = np.sin(theta), np.cos(theta)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        if model == "double_sphere":
+            xi, alpha = params
+            k = xi + c
+            return s / (alpha * np.sqrt(s * s + k * k) + (1.0 - alpha) * k)
+        if model == "eucm":
+            alpha, beta = params
+            return s / (alpha * np.sqrt(beta * s * s + c * c) + (1.0 - alpha) * c)
+        (xi,) = params  # ucm
+        return s / (c + xi)
+
+
+def _closed_theta(model: str, params: tuple[float, ...], d: np.ndarray) -> np.ndarray:
+    """theta(d) for the models with a published closed-form unprojection."""
+    r2 = d * d
+    with np.errstate(divide="ignore", invalid="ignore"):
+        if model == "double_sphere":  # Usenko et al. 2018, eq. (47)-(49)
+            xi, alpha = params
+            mz = (1.0 - alpha * alpha * r2) / (
+                alpha * np.sqrt(np.maximum(1.0 - (2.0 * alpha - 1.0) * r2, 0.0)) + 1.0 - alpha
+            )
+            k = (mz * xi + np.sqrt(mz * mz + (1.0 - xi * xi) * r2)) / (mz * mz + r2)
+            return np.arctan2(k * d, k * mz - xi)
+        if model == "eucm":  # Khomutenko et al. 2016, eq. (11)
+            alpha, beta = params
+            root = np.sqrt(np.maximum(1.0 - (2.0 * alpha - 1.0) * beta * r2, 0.0))
+            mz = (1.0 - beta * alpha * alpha * r2) / (alpha * root + 1.0 - alpha)
+            return np.arctan2(d, mz)
+        (xi,) = params  # ucm (Mei): the ray is k (m, 1) - (0, 0, xi)
+        k = (xi + np.sqrt(np.maximum(1.0 + (1.0 - xi * xi) * r2, 0.0))) / (1.0 + r2)
+        return np.arctan2(k * d, k - xi)
+
+
+def _ocam_theta(params: tuple[float, ...], rho: np.ndarray) -> np.ndarray:
+    """OCamCalib: angle from the forward axis of the ray (rho, -P(rho)); rho in pixels."""
+    return np.arctan2(rho, -_poly(params, rho))
+
+
+@functools.lru_cache(maxsize=64)
+def _ocam_fold_rho(params: tuple[float, ...]) -> float | None:
+    """Where theta(rho) stops increasing: the first root of rho P'(rho) - P(rho), which is
+    sum_i (i - 1) a_i rho^i (positive at 0 since a0 < 0); None if theta increases throughout."""
+    return _first_positive_root(tuple((i - 1) * a for i, a in enumerate(params)), math.inf)
+
+
+def _ocam_dtheta(params: tuple[float, ...], rho: np.ndarray) -> np.ndarray:
+    p = _poly(params, rho)
+    return (rho * _poly(_poly_derivative(params), rho) - p) / (rho * rho + p * p)
+
+
+def _first_positive_root(coeffs: tuple[float, ...], upper: float) -> float | None:
+    """Smallest real root in (0, upper) of sum_i coeffs[i] x^i where the sign turns negative,
+    polished by Newton to machine precision; None if there is none."""
+    trimmed = np.trim_zeros(np.asarray(coeffs, dtype=float), "b")
+    if len(trimmed) < 2:
+        return None
+    roots = np.roots(trimmed[::-1])
+    real = roots[np.abs(roots.imag) <= 1e-9 * np.maximum(1.0, np.abs(roots))].real
+    deriv = _poly_derivative(tuple(trimmed))
+    best = None
+    for x in sorted(real[(real > 0) & (real < upper)]):
+        for _ in range(50):
+            slope = float(_poly(deriv, np.array(x)))
+            if slope == 0.0:
+                break
+            step = float(_poly(tuple(trimmed), np.array(x))) / slope
+            x -= step
+            if abs(step) <= 1e-16 * max(1.0, abs(x)):
+                break
+        # a touching (double) root does not stop the increase; a crossing does
+        eps = 1e-7 * max(1.0, x)
+        if float(_poly(tuple(trimmed), np.array(x + eps))) < 0 and 0 < x < upper:
+            best = x
+            break
+    return best
+
+
+def _cos_limit(w: float) -> float:
+    return math.acos(max(-1.0, min(1.0, -w)))
+
+
+def _ucm_w(xi2: float) -> float:
+    """A unit-sphere ray is valid for a UCM with parameter xi2 while cos(angle) > -w."""
+    return xi2 if xi2 <= 1.0 else 1.0 / xi2
+
+
+def valid_limit_rad(model: str, params: tuple[float, ...]) -> float:
+    """The largest ray angle (rad) the model maps one-to-one: where d(theta) stops strictly
+    increasing or its denominator reaches 0; pi when it increases all the way."""
+    if model == "equidistant":
+        return math.pi
+    if model == "kannala_brandt":
+        root = _first_positive_root(_poly_derivative(_kb_coeffs(params)), math.pi)
+        return math.pi if root is None else root
+    if model == "ucm":
+        return _cos_limit(_ucm_w(params[0]))
+    if model in ("double_sphere", "eucm"):
+        alpha = params[1] if model == "double_sphere" else params[0]
+        w = 0.0 if alpha >= 1.0 else _ucm_w(alpha / (1.0 - alpha))
+        t2 = _cos_limit(w)  # the limit on the second (DS) or the scaled (EUCM) sphere
+        if model == "eucm":
+            return math.atan2(math.sin(t2) / math.sqrt(params[1]), math.cos(t2))
+        xi = params[0]  # back along the ray from the second centre (0, 0, -xi) to the unit sphere
+        t = xi * math.cos(t2) + math.sqrt(1.0 - (xi * math.sin(t2)) ** 2)
+        return math.atan2(t * math.sin(t2), t * math.cos(t2) - xi)
+    rho = _ocam_fold_rho(params)
+    if rho is not None:
+        return float(_ocam_theta(params, np.array(rho)))
+    trimmed = np.trim_zeros(np.asarray(params, dtype=float), "b")
+    if len(trimmed) == 2:  # P = a0 + a1 rho: theta tends to atan2(1, -a1)
+        return math.atan2(1.0, -trimmed[1])
+    return math.pi if len(trimmed) > 2 else math.pi / 2
+
+
+def _valid_radius(model: str, params: tuple[float, ...], theta_valid: float) -> float:
+    """d(theta_valid): the largest normalized radius the model maps back (inf at a pole)."""
+    if model == "double_sphere" and params[1] > 0.5:
+        return 1.0 / math.sqrt(2.0 * params[1] - 1.0)
+    if model == "eucm" and params[0] > 0.5:
+        return 1.0 / math.sqrt(params[1] * (2.0 * params[0] - 1.0))
+    if model == "ucm" and params[0] > 1.0:
+        return 1.0 / math.sqrt(params[0] ** 2 - 1.0)
+    if model in ("double_sphere", "eucm", "ucm"):
+        return math.inf
+    if model == "ocamcalib":
+        rho = _ocam_fold_rho(params)
+        return math.inf if rho is None else rho / -params[0]
+    return float(_closed_radius(model, params, np.array(theta_valid)))
+
+
+def _invert_increasing(func, dfunc, y: np.ndarray, xs: np.ndarray, fs: np.ndarray) -> np.ndarray:
+    """x with func(x) = y for an increasing func tabulated as fs = func(xs): Newton's method
+    from the table's linear interpolation, kept inside the table bracket (bisection when a step
+    leaves it), run to machine precision. ``y`` is clipped to the table's range."""
+    y = np.clip(np.asarray(y, dtype=float), fs[0], fs[-1])
+    i = np.clip(np.searchsorted(fs, y), 1, len(xs) - 1)
+    lo, hi = xs[i - 1], xs[i]
+    x = np.interp(y, fs, xs)
+    tol = 4 * np.finfo(float).eps * np.maximum(np.abs(y), 1.0)  # f's own rounding
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for _ in range(_MAX_ITER):
+            r = func(x) - y
+            active = np.abs(r) > tol
+            if not active.any():
+                break
+            lo = np.where(r <= 0, x, lo)
+            hi = np.where(r >= 0, x, hi)
+            new = x - r / dfunc(x)
+            new = np.where((new >= lo) & (new <= hi), new, 0.5 * (lo + hi))
+            active &= new != x
+            if not active.any():
+                break
+            x = np.where(active, new, x)
+    return x
+
+
+@functools.lru_cache(maxsize=64)
+def _kb_table(params: tuple[float, ...], theta_valid: float) -> tuple[np.ndarray, np.ndarray]:
+    theta = np.linspace(0.0, theta_valid, _TABLE_SIZE)
+    return theta, _closed_radius("kannala_brandt", params, theta)
+
+
+@functools.lru_cache(maxsize=64)
+def _ocam_table(params: tuple[float, ...], theta_top: float) -> tuple[np.ndarray, np.ndarray]:
+    """rho from 0 to where theta(rho) first reaches ``theta_top`` (theta_max or the fold)."""
+    rho_fold = _ocam_fold_rho(params)
+    if rho_fold is None:
+        rho_top = -params[0]
+        for _ in range(200):
+            if float(_ocam_theta(params, np.array(rho_top))) >= theta_top:
+                break
+            rho_top *= 2.0
+    else:
+        rho_top = rho_fold
+    rho = np.linspace(0.0, rho_top, _TABLE_SIZE)
+    return rho, _ocam_theta(params, rho)
+
+
+# --- The camera -------------------------------------------------------------------------------
 
 
 @dataclass(frozen=True)
 class FisheyeCamera:
-    """An ideal fisheye camera. Pixels outside the image circle (theta > theta_max) are black."""
+    """A fisheye camera. Pixels outside the image circle (theta > theta_max) are black."""
 
     width_px: int
     height_px: int
@@ -35,31 +293,37 @@ class FisheyeCamera:
     cy_px: float
     theta_max_deg: float = 95.0
     model: str = "equidistant"
-    k: tuple[float, float, float, float] = field(default=(0.0, 0.0, 0.0, 0.0))
+    params: tuple[float, ...] = field(default=())
+    shear: tuple[float, float] = field(default=(0.0, 0.0))
 
     def __post_init__(self) -> None:
         for name in ("width_px", "height_px"):
             value = getattr(self, name)
-            if int(value) != value or value < 1:
+            if isinstance(value, bool) or int(value) != value or value < 1:
                 raise ValueError(f"{name}={value!r}: must be a positive integer")
         for name in ("fx_px", "fy_px"):
             if not (math.isfinite(getattr(self, name)) and getattr(self, name) > 0):
                 raise ValueError(f"{name}={getattr(self, name)!r}: must be a positive number")
+        for name in ("cx_px", "cy_px"):
+            if not math.isfinite(getattr(self, name)):
+                raise ValueError(f"{name}={getattr(self, name)!r}: must be a finite number")
         if not 0.0 < self.theta_max_deg < 180.0:
             raise ValueError(f"theta_max_deg={self.theta_max_deg!r}: allowed range is (0, 180)")
         if self.model not in MODELS:
             raise ValueError(f"model={self.model!r}: must be one of {', '.join(MODELS)}")
-        k = tuple(float(c) for c in self.k)
-        if len(k) != 4 or not all(math.isfinite(c) for c in k):
-            raise ValueError(f"k={self.k!r}: needs 4 finite Kannala-Brandt coefficients")
-        object.__setattr__(self, "k", k)
-        if self.model == "equidistant" and any(k):
-            raise ValueError("k must be zero for the equidistant model; use model='kannala_brandt'")
-        theta = np.linspace(0.0, self.theta_max_rad, 2001)
-        if np.any(np.diff(self.distort(theta)) <= 0):
+        shear = tuple(float(s) for s in self.shear)
+        if len(shear) != 2 or not all(math.isfinite(s) for s in shear):
+            raise ValueError(f"shear={self.shear!r}: needs 2 finite numbers (pixels)")
+        if self.fx_px * self.fy_px - shear[0] * shear[1] <= 0:
+            raise ValueError(f"shear={shear}: fx*fy - shear0*shear1 must be > 0")
+        object.__setattr__(self, "shear", shear)
+        object.__setattr__(self, "params", _check_params(self.model, self.params))
+        limit = self.theta_valid_max_deg
+        if self.theta_max_deg > limit + 1e-9:
             raise ValueError(
-                f"k={k}: d(theta) is not increasing up to theta_max_deg={self.theta_max_deg}; "
-                "the projection would not be invertible"
+                f"theta_max_deg={self.theta_max_deg!r}: beyond the {self.model} model's valid "
+                f"limit of {limit:.6f} deg for params {self.params}; allowed range is "
+                f"(0, {limit:.6f}]"
             )
 
     # --- Radial model
@@ -67,28 +331,55 @@ class FisheyeCamera:
     def theta_max_rad(self) -> float:
         return math.radians(self.theta_max_deg)
 
+    @property
+    def theta_valid_max_rad(self) -> float:
+        """The model's own limit: the largest ray angle it maps one-to-one."""
+        return _cached_limit(self.model, self.params)
+
+    @property
+    def theta_valid_max_deg(self) -> float:
+        return math.degrees(self.theta_valid_max_rad)
+
     def distort(self, theta_rad: np.ndarray) -> np.ndarray:
-        """Normalized image radius d(theta) for ray angles from the optical axis."""
-        t2 = np.square(theta_rad)
-        k1, k2, k3, k4 = self.k
-        return theta_rad * (1.0 + t2 * (k1 + t2 * (k2 + t2 * (k3 + t2 * k4))))
+        """Normalized image radius d(theta) for ray angles up to theta_max."""
+        theta = np.asarray(theta_rad, dtype=float)
+        if self.model != "ocamcalib":
+            return _closed_radius(self.model, self.params, theta)
+        rho, th = _ocam_table(self.params, min(self.theta_max_rad, self.theta_valid_max_rad))
+        p = self.params
+        rho_of_theta = _invert_increasing(
+            lambda r: _ocam_theta(p, r), lambda r: _ocam_dtheta(p, r), theta, rho, th
+        )
+        return rho_of_theta / -p[0]
 
     def undistort(self, d: np.ndarray) -> np.ndarray:
-        """Ray angle theta for a normalized radius d: the exact inverse of :meth:`distort`."""
-        d = np.asarray(d, dtype=float)
+        """Ray angle theta for a normalized radius d: the exact inverse of :meth:`distort`.
+
+        Radii beyond the model's reach give its limit ``theta_valid_max_rad``."""
+        d = np.minimum(np.asarray(d, dtype=float), _cached_valid_radius(self.model, self.params))
         if self.model == "equidistant":
             return d.copy()
-        k1, k2, k3, k4 = self.k
-        theta = d.copy()
-        for _ in range(_NEWTON_STEPS):
-            t2 = theta * theta
-            f = self.distort(theta) - d
-            df = 1.0 + t2 * (3 * k1 + t2 * (5 * k2 + t2 * (7 * k3 + t2 * 9 * k4)))
-            step = f / df
-            theta -= step
-            if np.all(np.abs(step) < 1e-15):
-                break
-        return theta
+        if self.model == "ocamcalib":
+            return _ocam_theta(self.params, d * -self.params[0])
+        if self.model == "kannala_brandt":
+            xs, fs = _kb_table(self.params, self.theta_valid_max_rad)
+            coeffs = _kb_coeffs(self.params)
+            deriv = _poly_derivative(coeffs)
+            return _invert_increasing(
+                lambda t: _poly(coeffs, t), lambda t: _poly(deriv, t), d, xs, fs
+            )
+        theta = _closed_theta(self.model, self.params, d)
+        return np.where(np.isinf(d), self.theta_valid_max_rad, theta)
+
+    def _normalized(self, pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """m = A^-1 (pixel - c) for (..., 2) pixels."""
+        uv = np.asarray(pixels, dtype=float)
+        u, v = uv[..., 0] - self.cx_px, uv[..., 1] - self.cy_px
+        if self.shear == (0.0, 0.0):
+            return u / self.fx_px, v / self.fy_px
+        s0, s1 = self.shear
+        det = self.fx_px * self.fy_px - s0 * s1
+        return (self.fy_px * u - s0 * v) / det, (self.fx_px * v - s1 * u) / det
 
     # --- Projection
     def project(self, points_cam: np.ndarray) -> np.ndarray:
@@ -96,17 +387,16 @@ class FisheyeCamera:
         p = np.asarray(points_cam, dtype=float)
         rho = np.hypot(p[..., 0], p[..., 1])
         theta = np.arctan2(rho, p[..., 2])
-        d = self.distort(theta)
+        outside = (theta > self.theta_max_rad) | ((rho == 0) & (p[..., 2] <= 0))
+        d = self.distort(np.where(outside, 0.0, theta))
         safe_rho = np.where(rho > 0, rho, 1.0)
         scale = np.where(rho > 0, d / safe_rho, 0.0)
+        mx, my = scale * p[..., 0], scale * p[..., 1]
+        s0, s1 = self.shear
         px = np.stack(
-            [
-                self.fx_px * scale * p[..., 0] + self.cx_px,
-                self.fy_px * scale * p[..., 1] + self.cy_px,
-            ],
+            [self.fx_px * mx + s0 * my + self.cx_px, s1 * mx + self.fy_px * my + self.cy_px],
             axis=-1,
         )
-        outside = (theta > self.theta_max_rad) | ((rho == 0) & (p[..., 2] <= 0))
         px[outside] = np.nan
         return px
 
@@ -115,30 +405,30 @@ class FisheyeCamera:
 
         Returns ``(directions, valid)``; ``valid`` is False outside the image circle.
         """
-        uv = np.asarray(pixels, dtype=float)
-        mx = (uv[..., 0] - self.cx_px) / self.fx_px
-        my = (uv[..., 1] - self.cy_px) / self.fy_px
+        mx, my = self._normalized(pixels)
         d = np.hypot(mx, my)
-        valid = d <= self.distort(np.array(self.theta_max_rad))
-        theta = self.undistort(np.minimum(d, self.distort(np.array(self.theta_max_rad))))
-        sin_t = np.sin(theta)
+        d_max = float(self.distort(np.array(self.theta_max_rad)))
+        valid = d <= d_max * (1.0 + 1e-12)  # a ray at theta_max rounds to either side of d_max
+        theta = self.undistort(np.minimum(d, d_max))
         safe_d = np.where(d > 0, d, 1.0)
-        scale = np.where(d > 0, sin_t / safe_d, 0.0)
+        scale = np.where(d > 0, np.sin(theta) / safe_d, 0.0)
         dirs = np.stack([scale * mx, scale * my, np.cos(theta)], axis=-1)
         return dirs, valid
 
     def theta_of_pixel(self, pixels: np.ndarray) -> np.ndarray:
-        """Ray angle from the optical axis (rad) for (..., 2) pixels."""
-        uv = np.asarray(pixels, dtype=float)
-        d = np.hypot((uv[..., 0] - self.cx_px) / self.fx_px, (uv[..., 1] - self.cy_px) / self.fy_px)
-        return self.undistort(d)
+        """Ray angle from the optical axis (rad) for (..., 2) pixels; finite everywhere:
+        pixels beyond the model's reach give ``theta_valid_max_rad``."""
+        mx, my = self._normalized(pixels)
+        return self.undistort(np.hypot(mx, my))
 
     def image_circle_box(self, margin_px: int = 8) -> tuple[int, int, int, int]:
         """(x0, y0, x1, y1), x1 and y1 exclusive: the pixels within ``margin_px`` of the image
         circle (theta <= theta_max), clipped to the image. Nothing the model can see lies outside,
         so a detector searching only this box finds what it would in the whole frame."""
         d_max = float(self.distort(np.array(self.theta_max_rad)))
-        rx, ry = self.fx_px * d_max + margin_px, self.fy_px * d_max + margin_px
+        # the circle |m| = d_max maps to an ellipse whose half-extents are the rows' norms of A
+        rx = d_max * math.hypot(self.fx_px, self.shear[0]) + margin_px
+        ry = d_max * math.hypot(self.shear[1], self.fy_px) + margin_px
         return (
             max(0, math.floor(self.cx_px - rx)),
             max(0, math.floor(self.cy_px - ry)),
@@ -146,13 +436,30 @@ class FisheyeCamera:
             min(self.height_px, math.ceil(self.cy_px + ry) + 1),
         )
 
+    def fov_in_image_deg(self) -> tuple[float, float, float]:
+        """(horizontal, vertical, diagonal) field of view the image records, in degrees: the
+        sum of the two half-angles to opposite image edges (corners) through the principal
+        point, each capped at theta_max (the image circle)."""
+        w, h = self.width_px - 0.5, self.height_px - 0.5
+        pairs = [
+            [(-0.5, self.cy_px), (w, self.cy_px)],
+            [(self.cx_px, -0.5), (self.cx_px, h)],
+            [(-0.5, -0.5), (w, h)],
+        ]
+        theta = np.minimum(self.theta_of_pixel(np.array(pairs)), self.theta_max_rad)
+        return tuple(float(v) for v in np.degrees(theta.sum(axis=1)))
+
     # --- Interchange
     def to_opencv(self) -> dict[str, Any]:
-        """OpenCV fisheye form: K (3x3), D (4,), image size (w, h). Exact below 90 degrees only."""
-        K = np.array(
-            [[self.fx_px, 0.0, self.cx_px], [0.0, self.fy_px, self.cy_px], [0.0, 0.0, 1.0]]
-        )
-        return {"K": K, "D": np.array(self.k), "size": (self.width_px, self.height_px)}
+        """OpenCV fisheye form: K (3x3), D (4,), image size (w, h) and ``fit_max_err_px``.
+
+        Exact for Kannala-Brandt and equidistant cameras without shear (below 90 degrees,
+        where OpenCV works). Other models get a least-squares Kannala-Brandt fit of d(theta)
+        over [0, min(theta_max, 89 deg)]; ``fit_max_err_px`` is the largest distance there
+        between OpenCV's own projection (``cv2.fisheye.projectPoints``) and the exact model.
+        """
+        form = _opencv_form(self)
+        return {**form, "K": form["K"].copy(), "D": form["D"].copy()}
 
     @classmethod
     def from_opencv(
@@ -160,9 +467,14 @@ class FisheyeCamera:
     ) -> FisheyeCamera:
         """The exact model behind an OpenCV fisheye calibration (K, D, (width, height))."""
         K = np.asarray(K, dtype=float)
-        if K.shape != (3, 3) or K[0, 1] != 0.0:
-            raise ValueError(f"K must be a 3x3 matrix without skew, got {K.tolist()}")
+        if K.shape != (3, 3) or K[0, 1] != 0.0 or K[1, 0] != 0.0 or K[2].tolist() != [0, 0, 1]:
+            raise ValueError(
+                f"K must be a 3x3 camera matrix without skew (cv2.fisheye ignores it), "
+                f"got {K.tolist()}"
+            )
         k = tuple(float(c) for c in np.asarray(D, dtype=float).ravel())
+        if len(k) != 4:
+            raise ValueError(f"D={list(k)}: an OpenCV fisheye D has 4 coefficients")
         return cls(
             width_px=int(size[0]),
             height_px=int(size[1]),
@@ -172,24 +484,29 @@ class FisheyeCamera:
             cy_px=float(K[1, 2]),
             theta_max_deg=theta_max_deg,
             model="kannala_brandt" if any(k) else "equidistant",
-            k=k,
+            params=k if any(k) else (),
         )
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready: the exact model plus its OpenCV fisheye form."""
         cv = self.to_opencv()
+        model = asdict(self)
+        model["params"], model["shear"] = list(self.params), list(self.shear)
         return {
-            "model": asdict(self),
+            "model": model,
             "opencv_fisheye": {
                 "K": cv["K"].tolist(),
                 "D": cv["D"].tolist(),
                 "size": list(cv["size"]),
+                "fit_max_err_px": cv["fit_max_err_px"],
             },
         }
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> FisheyeCamera:
-        """Inverse of :meth:`to_dict`; raises ValueError naming a missing or bad field."""
+        """Inverse of :meth:`to_dict`; raises ValueError naming a missing or bad field.
+
+        Reads older files too, whose Kannala-Brandt coefficients are a list ``k``."""
         model = data.get("model")
         if not isinstance(model, dict):
             raise ValueError("camera file: missing the 'model' object")
@@ -200,10 +517,105 @@ class FisheyeCamera:
         ]
         if missing:
             raise ValueError(f"camera file: 'model' lacks field(s) {', '.join(missing)}")
-        fields = dict(model)
-        if "k" in fields:
-            fields["k"] = tuple(fields["k"])
-        return cls(**fields)
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(model) - known - {"k"})
+        if unknown:
+            raise ValueError(
+                f"camera file: unknown 'model' field(s) {', '.join(unknown)}; "
+                f"allowed: {', '.join(sorted(known))}"
+            )
+        values = dict(model)
+        if "k" in values:
+            if "params" in values:
+                raise ValueError("camera file: give 'params' or the older 'k', not both")
+            k = values.pop("k")
+            if not isinstance(k, list | tuple):
+                raise ValueError(f"camera file: k={k!r}: must be a list of 4 numbers")
+            legacy_equidistant = values.get("model", "equidistant") == "equidistant"
+            values["params"] = () if legacy_equidistant and not any(k) else tuple(k)
+        for name in ("params", "shear"):
+            if name in values:
+                if not isinstance(values[name], list | tuple):
+                    raise ValueError(f"camera file: {name}={values[name]!r}: must be a list")
+                values[name] = tuple(values[name])
+        return cls(**values)
+
+
+def _check_params(model: str, params: Any) -> tuple[float, ...]:
+    """The model's parameters as floats, or ValueError naming ``params`` and the allowed range."""
+    try:
+        values = tuple(float(p) for p in params)
+    except (TypeError, ValueError):
+        raise ValueError(f"params={params!r}: must be a list of numbers") from None
+    if not all(math.isfinite(p) for p in values):
+        raise ValueError(f"params={values}: must be finite")
+    names = PARAM_NAMES[model]
+    if model == "ocamcalib":
+        if not 1 <= len(values) <= MAX_OCAM_COEFFS or values[0] >= 0:
+            raise ValueError(
+                f"params={values}: ocamcalib needs 1 to {MAX_OCAM_COEFFS} polynomial "
+                "coefficients a0, a1, ... with a0 < 0"
+            )
+        return values
+    if len(values) != len(names):
+        expected = f"({', '.join(names)})" if names else "none"
+        raise ValueError(f"params={values}: the {model} model takes {expected}")
+    ranges = {
+        "double_sphere": ((-1.0, 1.0, False), (0.0, 1.0, True)),  # xi in (-1, 1), alpha in [0, 1]
+        "eucm": ((0.0, 1.0, True), (0.0, math.inf, False)),  # alpha in [0, 1], beta > 0
+        "ucm": ((0.0, math.inf, True),),  # xi >= 0
+    }.get(model, ())
+    for name, value, (lo, hi, closed) in zip(names, values, ranges, strict=False):
+        inside = lo <= value <= hi if closed else lo < value < hi
+        if not inside:
+            left, right = ("[", "]") if closed else ("(", ")")
+            raise ValueError(
+                f"params: {name}={value!r}: allowed range is {left}{lo:g}, {hi:g}{right}"
+            )
+    return values
+
+
+@functools.lru_cache(maxsize=256)
+def _cached_limit(model: str, params: tuple[float, ...]) -> float:
+    return valid_limit_rad(model, params)
+
+
+@functools.lru_cache(maxsize=256)
+def _cached_valid_radius(model: str, params: tuple[float, ...]) -> float:
+    return _valid_radius(model, params, _cached_limit(model, params))
+
+
+@functools.lru_cache(maxsize=64)
+def _opencv_form(camera: FisheyeCamera) -> dict[str, Any]:
+    size = (camera.width_px, camera.height_px)
+    exact = camera.model in ("equidistant", "kannala_brandt")
+    if exact:
+        gain, D = 1.0, np.array(camera.params if camera.params else (0.0,) * 4, dtype=float)
+    else:  # d(theta) ~ g theta (1 + k1 theta^2 + ... + k4 theta^8): linear in g, g k1, ..., g k4
+        theta = np.linspace(0.0, min(camera.theta_max_rad, math.radians(OPENCV_FIT_MAX_DEG)), 400)
+        basis = np.stack([theta ** (2 * i + 1) for i in range(5)], axis=-1)
+        coeffs = np.linalg.lstsq(basis, camera.distort(theta), rcond=None)[0]
+        gain, D = float(coeffs[0]), coeffs[1:] / coeffs[0]
+    K = np.array(
+        [
+            [gain * camera.fx_px, 0.0, camera.cx_px],
+            [0.0, gain * camera.fy_px, camera.cy_px],
+            [0.0, 0.0, 1.0],
+        ]
+    )
+    return {"K": K, "D": D, "size": size, "fit_max_err_px": _opencv_error_px(camera, K, D)}
+
+
+def _opencv_error_px(camera: FisheyeCamera, K: np.ndarray, D: np.ndarray) -> float:
+    """Largest pixel distance between cv2.fisheye's projection (K, D) and the exact camera,
+    over the field below min(theta_max, 89 deg) and every 10 degrees of azimuth."""
+    top = min(camera.theta_max_rad, math.radians(OPENCV_FIT_MAX_DEG))
+    theta, phi = np.meshgrid(np.linspace(0.0, top, 90), np.radians(np.arange(0.0, 360.0, 10.0)))
+    rays = np.stack(
+        [np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)], axis=-1
+    ).reshape(-1, 1, 3)
+    ref, _ = cv2.fisheye.projectPoints(rays, np.zeros(3), np.zeros(3), K, D)
+    return float(np.max(np.linalg.norm(ref.reshape(-1, 2) - camera.project(rays[:, 0]), axis=-1)))
 
 
 def default_camera() -> FisheyeCamera:

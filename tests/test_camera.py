@@ -1,5 +1,6 @@
 """The fisheye camera model against independent computations."""
 
+import dataclasses
 import math
 
 import cv2
@@ -8,12 +9,12 @@ import pytest
 
 from scenes.camera import FisheyeCamera, default_camera
 
-KB = dict(model="kannala_brandt", k=(0.03, -0.004, 0.0006, -0.00004))
+KB = dict(model="kannala_brandt", params=(0.03, -0.004, 0.0006, -0.00004))
 
 
 def cameras():
     base = default_camera()
-    return [base, FisheyeCamera(**{**base.__dict__, **KB})]
+    return [base, dataclasses.replace(base, **KB)]
 
 
 def random_directions(n, theta_max_rad, seed=0):
@@ -104,18 +105,28 @@ def test_camera_file_missing_fields_are_named():
         (dict(fx_px=-1.0), "fx_px"),
         (dict(theta_max_deg=180.0), "theta_max_deg"),
         (dict(model="pinhole"), "model"),
-        (dict(k=(0.1, 0.0, 0.0, 0.0)), "k"),  # non-zero k on the equidistant model
-        (dict(model="kannala_brandt", k=(-0.5, 0.0, 0.0, 0.0)), "k"),  # not invertible
+        (dict(params=(0.1, 0.0, 0.0, 0.0)), "params"),  # parameters on the equidistant model
+        (dict(model="kannala_brandt", params=(0.1,)), "params"),  # KB takes 4
+        (dict(model="kannala_brandt", params=(-0.5, 0.0, 0.0, 0.0)), "theta_max_deg"),  # folds
+        (dict(shear=(1.0,)), "shear"),
+        (dict(cx_px=float("nan")), "cx_px"),
     ],
 )
 def test_bad_camera_fields_raise(change, field):
     with pytest.raises(ValueError, match=field):
-        FisheyeCamera(**{**default_camera().__dict__, **change})
+        dataclasses.replace(default_camera(), **change)
 
 
-@pytest.mark.parametrize("k", [(0.0, 0.0, 0.0, 0.0), (0.02, -0.01, 0.0, 0.0)])
-def test_image_circle_box_holds_every_visible_pixel_and_little_else(k):
-    camera = FisheyeCamera(1200, 900, 300.0, 310.0, 611.3, 447.8, 95.0, "kannala_brandt", k)
+@pytest.mark.parametrize(
+    "k, shear",
+    [
+        ((0.0, 0.0, 0.0, 0.0), (0.0, 0.0)),
+        ((0.02, -0.01, 0.0, 0.0), (0.0, 0.0)),
+        ((0.02, -0.01, 0.0, 0.0), (25.0, -40.0)),
+    ],
+)
+def test_image_circle_box_holds_every_visible_pixel_and_little_else(k, shear):
+    camera = FisheyeCamera(1200, 900, 300.0, 310.0, 611.3, 447.8, 95.0, "kannala_brandt", k, shear)
     x0, y0, x1, y1 = camera.image_circle_box(margin_px=0)
     # independent: project rays at theta_max all around the circle
     phi = np.linspace(0, 2 * np.pi, 3601)
@@ -134,3 +145,33 @@ def test_image_circle_box_holds_every_visible_pixel_and_little_else(k):
     outside[y0:y1, x0:x1] = False
     assert not (valid & outside).any()
     assert camera.image_circle_box() == (x0 - 8, max(y0 - 8, 0), x1 + 8, min(y1 + 8, 900))
+
+
+def test_older_camera_files_with_k_still_load():
+    legacy = default_camera().to_dict()
+    model = legacy["model"]
+    del model["params"], model["shear"]
+    model["k"] = [0.0, 0.0, 0.0, 0.0]
+    assert FisheyeCamera.from_dict(legacy) == default_camera()
+    model.update(model="kannala_brandt", k=list(KB["params"]))
+    assert FisheyeCamera.from_dict(legacy) == cameras()[1]
+    model["params"] = list(KB["params"])
+    with pytest.raises(ValueError, match="'params' or the older 'k'"):
+        FisheyeCamera.from_dict(legacy)
+
+
+def test_unknown_camera_file_field_is_named():
+    data = default_camera().to_dict()
+    data["model"]["focal"] = 3.0
+    with pytest.raises(ValueError, match="focal"):
+        FisheyeCamera.from_dict(data)
+
+
+def test_opencv_form_of_kannala_brandt_is_exact_and_skew_is_refused():
+    cv = cameras()[1].to_opencv()
+    assert cv["fit_max_err_px"] < 1e-9
+    assert cv["D"].tolist() == list(KB["params"])
+    K = cv["K"].copy()
+    K[0, 1] = 5.0  # cv2.fisheye ignores skew: a K with one would not mean what it says
+    with pytest.raises(ValueError, match="skew"):
+        FisheyeCamera.from_opencv(K, cv["D"], cv["size"])

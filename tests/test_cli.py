@@ -52,3 +52,25 @@ def test_unwritable_out(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--out" in err[0]
     assert blocker.read_text() == "not a folder"
+
+
+def test_detect_reads_a_profile_by_name_or_file(tmp_path, capsys):
+    """``--camera`` of detect takes a shipped profile name or a profile JSON: a bad one is
+    refused naming the option and the profile field; a good one gets as far as the video."""
+    import json
+
+    from scenes.profile import CameraProfile
+
+    video = tmp_path / "missing.mp4"
+    bad = CameraProfile().to_json()
+    bad["stream"]["quality"] = 0
+    (tmp_path / "bad.json").write_text(json.dumps(bad))
+    for camera, says in (("nosuch", "--camera"), (str(tmp_path / "bad.json"), "stream.quality")):
+        assert call(["detect", str(video), "--camera", camera]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "--camera" in err[0] and says in err[0], err
+    (tmp_path / "good.json").write_text(json.dumps(CameraProfile().to_json()))
+    assert call(["detect", str(video), "--camera", str(tmp_path / "good.json")]) == 2
+    err = capsys.readouterr().err
+    assert "no such file" in err and "--camera" not in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.json", "good.json"]

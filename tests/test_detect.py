@@ -22,9 +22,9 @@ def sample_video(rendered_pair):
 @pytest.mark.parametrize("name", list(PRESETS))
 def test_every_preset_runs_and_paper_finds_the_branch(sample_video, tmp_path, name) -> None:
     from bench.detect import run_detect
-    from scenes.camera import FisheyeCamera
+    from scenes.profile import load_profile
 
-    camera = FisheyeCamera.from_dict(json.loads((sample_video / "camera.json").read_text()))
+    camera = load_profile(sample_video / "camera.json").lens
     record = run_detect(sample_video / "video.mp4", camera, PRESETS[name], tmp_path)
     assert record["true_gaps"] == [[8, 9]]
     assert (tmp_path / "branches.png").stat().st_size > 1000
@@ -46,6 +46,7 @@ def _run(*args: str) -> subprocess.CompletedProcess:
 
 
 def test_unreadable_video_and_bad_camera_one_line_exit_2(tmp_path) -> None:
+    """An old dataset's bare camera file still loads (the video is what is refused)."""
     camera = tmp_path / "camera.json"
     from scenes.camera import default_camera
 
@@ -111,11 +112,13 @@ def test_a_video_that_starts_in_contact_is_refused(sample_video, tmp_path) -> No
 
 
 def test_a_camera_file_of_another_size_is_refused(sample_video, tmp_path) -> None:
-    from scenes.camera import FisheyeCamera
+    from scenes.profile import load_profile
 
-    camera = FisheyeCamera.from_dict(json.loads((sample_video / "camera.json").read_text()))
-    small = dataclasses.replace(camera, width_px=1296, height_px=972, cx_px=647.5, cy_px=485.5)
-    (tmp_path / "small.json").write_text(json.dumps(small.to_dict()))
+    profile = load_profile(sample_video / "camera.json")
+    small = profile.with_lens(
+        dataclasses.replace(profile.lens, width_px=1296, height_px=972, cx_px=647.5, cy_px=485.5)
+    )
+    (tmp_path / "small.json").write_text(json.dumps(small.to_json()))
     video, _ = _cut(sample_video, tmp_path, range(12))
     run = _run(str(video), "--camera", str(tmp_path / "small.json"))
     assert run.returncode == 2 and len(run.stderr.strip().splitlines()) == 1

@@ -30,6 +30,22 @@ def test_band_holds_every_marker_at_any_deflection() -> None:
     assert band.height < camera.height_px / 8  # the shortcut is worth having
 
 
+@pytest.mark.parametrize("block_px", [8, 16])
+def test_band_and_zone_start_and_end_on_the_block_grid(block_px) -> None:
+    """An MJPEG crop must start on the frame's block grid; the aligned boxes hold the exact ones."""
+    camera = default_camera()
+    exact = marker_region(camera, SPEC, margin_px=16)
+    aligned = marker_region(camera, SPEC, margin_px=16, block_px=block_px)
+    for a, e in zip(aligned, exact, strict=True):
+        for start, length, full in ((a.x0, a.width, 2592), (a.y0, a.height, 1944)):
+            assert start % block_px == 0
+            assert (start + length) % block_px == 0 or start + length == full
+        assert a.x0 <= e.x0 and a.x0 + a.width >= e.x0 + e.width
+        assert a.y0 <= e.y0 and a.y0 + a.height >= e.y0 + e.height
+        assert a.height - e.height < 2 * block_px  # grown by less than a block at each end
+    assert aligned[0].width == 2592 and aligned[0].y0 == aligned[1].y0
+
+
 def test_sampling_rejects_bad_counts() -> None:
     with pytest.raises(ValueError, match="subframes"):
         FrameSampling(subframes=0)
@@ -54,13 +70,15 @@ def renderers(variant):
     }
 
 
+ANGLES = np.zeros((4, 13, 2))
+ANGLES[:, 6, 0] = np.linspace(0.3, 0.35, 4)
+OFFSETS = np.tile([10.0, 0.0], (4, 1))
+
+
 def test_band_and_full_frame_agree_inside_the_zone(renderers) -> None:
     band, full = renderers[False], renderers[True]
-    angles = np.zeros((4, 13, 2))
-    angles[:, 6, 0] = np.linspace(0.3, 0.35, 4)
-    offsets = np.tile([10.0, 0.0], (4, 1))
-    a = band.render(angles, offsets)
-    b = full.render(angles, offsets)
+    a = band.render(ANGLES, OFFSETS)
+    b = full.render(ANGLES, OFFSETS)
     z = band.zone
     rows = slice(z.y0 - band.region.y0, z.y0 - band.region.y0 + z.height)
     cols = slice(z.x0, z.x0 + z.width)
@@ -74,3 +92,20 @@ def test_band_and_full_frame_agree_inside_the_zone(renderers) -> None:
 def test_render_checks_shapes(renderers) -> None:
     with pytest.raises(ValueError, match="angles"):
         renderers[False].render(np.zeros((3, 13, 2)), np.zeros((4, 2)))
+
+
+def test_frames_are_rgb_and_the_sky_has_its_colour(renderers) -> None:
+    """Where rays escape, a pixel holds the sky's radiance in the sky's colour, channel by
+    channel (computed here from the lighting preset and the camera's own rays)."""
+    from renderers.window import Window
+
+    full = renderers[True]
+    rgb = full.render(ANGLES, OFFSETS)
+    assert rgb.shape == (1944, 2592, 3) and rgb.dtype == np.float32
+    top = Window(0, 0, 2592, 150)  # looking up, above the array and the foliage
+    dirs, valid = full.camera.unproject(top.pixel_centres())
+    sky = full.lighting.sky
+    expected = sky.radiance(dirs.reshape(-1, 3)).reshape(top.shape)[..., None] * sky.color
+    matches = np.isclose(rgb[:150], expected, rtol=1e-3).all(axis=-1)
+    assert matches[valid].mean() > 0.99
+    assert np.ptp(np.asarray(sky.color)) > 0.1  # a test that could tell channels apart

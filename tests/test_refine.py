@@ -4,6 +4,7 @@ fallback to the input corners when refinement fails."""
 
 from __future__ import annotations
 
+import dataclasses
 import warnings
 
 import cv2
@@ -28,21 +29,20 @@ MODULES = 6  # 4x4 dictionary: 4 code bits + the black border on each side
 def _render_grid(size_mm: float) -> list[dict]:
     pytest.importorskip("mitsuba")
     from bench.detectability import Cell, StudyConfig, cell_images, init_worker
-    from renderers.response import CameraResponse
+    from scenes.profile import Sensor, load_profile
 
     init_worker(None)
-    config = StudyConfig(
-        images=1,
-        lightings=("lab",),
-        spp=64,
-        response=CameraResponse(read_noise_e=0, full_well_e=1e9),
+    # The ideal, noise-free camera: these tests measure the refinement, not the camera.
+    camera = dataclasses.replace(
+        load_profile("ideal"), sensor=Sensor(read_noise_e=0.0, full_well_e=1e7)
     )
+    config = StudyConfig(images=1, lightings=("lab",), spp=64, camera=camera)
     cells = []
     for alpha in ALPHAS_DEG:
         for phi in PHIS_DEG:
-            images, window, truth = cell_images(config, Cell("lab", size_mm, alpha, phi))
+            images, window, T_cam_marker = cell_images(config, Cell("lab", size_mm, alpha, phi), 1)
             corners = marker_corners_marker(size_mm)
-            gt = config.camera.project(transform_points(truth["T_cam_marker"], corners))
+            gt = camera.lens.project(transform_points(T_cam_marker, corners))
             cells.append(
                 {
                     "alpha": alpha,
@@ -50,7 +50,7 @@ def _render_grid(size_mm: float) -> list[dict]:
                     "image": images[0],
                     "offset": (window.x0, window.y0),
                     "gt": gt,
-                    "camera": config.camera,
+                    "camera": camera.lens,
                 }
             )
     return cells

@@ -1,4 +1,5 @@
-"""The detectability study end to end on a tiny grid: outputs, determinism, resume, crashes."""
+"""The detectability study end to end on a tiny grid: outputs, determinism, resume, crashes,
+adaptive image counts, tilt refinement and the PSF band."""
 
 import json
 
@@ -6,10 +7,14 @@ import pandas as pd
 import pytest
 
 from bench import detectability
-from bench.detectability import StudyConfig, StudyConfigError
-from bench.study import run_study
+from bench.detectability import IMAGE_STEPS, Cell, StudyConfig, StudyConfigError, settled
+from bench.study import _refinement_cells, run_study
 
-TINY = dict(sizes_mm=(8.8,), alphas_deg=(0.0, 85.0), phis_deg=(0.0, 60.0), images=6)
+# A coarse tilt resolution keeps the refinement to one round on this grid.
+TINY = dict(
+    sizes_mm=(13.2,), alphas_deg=(0.0, 85.0), phis_deg=(0.0, 60.0), images=6,
+    phi_resolution_deg=30.0,
+)  # fmt: skip
 
 
 def run(tmp_path, name="run", **kwargs):
@@ -24,6 +29,7 @@ def test_outputs(variant, tmp_path):
         "images.parquet",
         "summary.csv",
         "max_phi.csv",
+        "max_phi_by_scale.csv",
         "max_phi.png",
         "heatmap.png",
         "pose_error.png",
@@ -32,35 +38,37 @@ def test_outputs(variant, tmp_path):
     ):
         assert (out / name).stat().st_size > 0, name
     images = pd.read_parquet(out / "images.parquet")
-    assert len(images) == 4 * 6
+    grid = images[images.phi_deg.isin(config.phis_deg)]
+    assert len(grid) == 4 * 6
     for column in (
-        "size_mm",
-        "alpha_deg",
-        "phi_deg",
-        "lighting",
-        "image_index",
-        "detected",
-        "id_ok",
-        "gt_x0_px",
-        "gt_y3_px",
-        "det_x0_px",
-        "corner_err_px",
-        "rot_err_deg",
-        "trans_err_mm",
-        "ambiguity_ratio",
-    ):
+        "size_mm", "alpha_deg", "phi_deg", "lighting", "psf_scale", "image_index", "detected",
+        "id_ok", "gt_x0_px", "gt_y3_px", "det_x0_px_lines", "det_y3_px_subpix",
+        "corner_err_px_lines", "corner_err_px_subpix", "rot_err_deg_lines", "trans_err_mm_subpix",
+        "ambiguity_ratio_lines",
+    ):  # fmt: skip
         assert column in images.columns, column
     frontal = images[(images.alpha_deg == 0) & (images.phi_deg == 0)]
-    assert frontal.id_ok.all() and (frontal.corner_err_px < 1.0).all()
+    assert frontal.id_ok.all() and (frontal.corner_err_px_lines < 1.0).all()
     summary = pd.read_csv(out / "summary.csv")
-    assert len(summary) == 4 and {"rate_lo", "rate_hi", "detection_rate"} <= set(summary.columns)
+    assert {"rate_lo", "rate_hi", "detection_rate", "decided"} <= set(summary.columns)
+    assert {"trans_err_mm_lines_p95", "trans_err_mm_subpix_max"} <= set(summary.columns)
     assert (summary.rate_lo <= summary.detection_rate).all()
     assert len(pd.read_csv(out / "max_phi.csv")) == 2
     written = json.loads((out / "manifest.json").read_text())
     assert written["variant"] == variant and written["seed"] == 0
+    assert written["camera_profile"] == "prototype"
     assert written["versions"]["mitsuba"] and written["images_per_s"] > 0
     assert set(written["wall_s"]) >= {"cells_s", "tables_s", "plots_s", "total_s"}
+    assert sum(written["images_per_cell"].values()) == len(images) == written["images_total"]
     assert not list(out.rglob("*.tmp*"))
+
+
+def test_crops_start_on_the_mjpeg_block_grid(variant):
+    config = StudyConfig(**TINY)
+    assert config.block_px == 16
+    render = detectability.render_cell(config, Cell("sun", 13.2, 40.0, 30.0))
+    w = render.window
+    assert w.x0 % 16 == 0 and w.y0 % 16 == 0 and w.width % 16 == 0
 
 
 def test_same_seed_same_summary_other_seed_other_images(variant, tmp_path):
@@ -69,15 +77,16 @@ def test_same_seed_same_summary_other_seed_other_images(variant, tmp_path):
     _, c, _ = run(tmp_path, "c", seed=1)
     assert (a / "summary.csv").read_bytes() == (b / "summary.csv").read_bytes()
     pa, pc = (pd.read_parquet(x / "images.parquet") for x in (a, c))
-    assert not pa.corner_err_px.equals(pc.corner_err_px)
+    assert not pa.corner_err_px_lines.equals(pc.corner_err_px_lines)
 
 
 def test_resume_skips_finished_cells_and_gives_the_same_answer(variant, tmp_path):
     config, out, first = run(tmp_path)
     summary = (out / "summary.csv").read_bytes()
-    (out / "cells" / f"{config.cells()[1].key}.parquet").unlink()
+    (out / "cells" / f"{config.cells()[1].output_name(1.0)}.parquet").unlink()
     second = run_study(config, out, progress=False)
-    assert (second["cells_computed"], second["cells_resumed"]) == (1, 3)
+    assert second["cells_computed"] == 1
+    assert second["cells_resumed"] == first["cells_total"] - 1
     assert (out / "summary.csv").read_bytes() == summary
 
 
@@ -114,6 +123,63 @@ def test_save_images(variant, tmp_path):
     run_study(config, out, save_images=True, progress=False)
     images = pd.read_parquet(out / "images.parquet")
     assert all((out / p).stat().st_size > 0 for p in images.image_path)
+
+
+@pytest.mark.parametrize("field, value", [("sizes_mm", (13.2, 13.2)), ("psf_scales", (1, 1.0))])
+def test_a_value_listed_twice_is_refused(field, value):
+    with pytest.raises(StudyConfigError, match="listed twice") as info:
+        StudyConfig(**{**TINY, field: value})
+    assert info.value.field == field
+
+
+def test_wilson_settles_a_cell_at_the_first_count_that_excludes_095():
+    assert settled(0, IMAGE_STEPS[0])  # never detected: settled after the first batch
+    assert not settled(30, 30) and not settled(72, 72) and settled(73, 73) and settled(80, 80)
+    assert not settled(152, 160)  # 0.95 inside the interval: keep drawing
+
+
+def test_adaptive_sampling_stops_when_settled(variant, tmp_path):
+    """A sharp frontal 13.2 mm marker is always found: 80 images settle it; a marker past the
+    image circle's reach is never found: 10 do."""
+    config, out, manifest = run(
+        tmp_path, images=240, alphas_deg=(0.0,), phis_deg=(0.0, 85.0), psf_scales=(0.0,)
+    )
+    used = manifest["images_per_cell"]
+    assert used[Cell("sun", 13.2, 0.0, 0.0).output_name(0.0)] == 80
+    assert used[Cell("sun", 13.2, 0.0, 85.0).output_name(0.0)] == 10
+
+
+def test_refinement_bisects_between_the_last_pass_and_the_first_fail():
+    config = StudyConfig(**{**TINY, "phi_resolution_deg": 2.5})
+    rates = pd.DataFrame(
+        {
+            "lighting": "sun", "psf_scale": [1.0] * 4 + [0.5] * 2, "size_mm": 13.2,
+            "alpha_deg": 0.0, "phi_deg": [0.0, 10.0, 20.0, 30.0, 0.0, 10.0],
+            "rate": [1.0, 1.0, 0.96, 0.2, 1.0, 1.0],
+        }
+    )  # fmt: skip
+    plan = _refinement_cells(config, rates)
+    assert plan == [(Cell("sun", 13.2, 0.0, 25.0), (1.0,))]  # scale 0.5 passes all: censored
+    rates.loc[len(rates)] = ["sun", 1.0, 13.2, 0.0, 25.0, 0.5]
+    rates.loc[len(rates)] = ["sun", 1.0, 13.2, 0.0, 22.5, 0.99]
+    assert _refinement_cells(config, rates) == []  # 22.5 -> 25: within 2.5 deg
+
+
+def test_band_renders_each_geometry_once_for_every_scale(variant, tmp_path, monkeypatch):
+    real, renders = detectability.render_cell, []
+
+    def counting(*args, **kwargs):
+        renders.append(args[1])
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr("bench.detectability.render_cell", counting)
+    config, out, manifest = run(
+        tmp_path, alphas_deg=(0.0,), phis_deg=(0.0,), psf_scales=(0.5, 1.0, 1.5)
+    )
+    assert len(renders) == 1
+    band = pd.read_csv(out / "max_phi.csv")
+    assert {"band_lo_deg", "band_hi_deg"} <= set(band.columns)
+    assert set(pd.read_parquet(out / "images.parquet").psf_scale) == {0.5, 1.0, 1.5}
 
 
 def test_crop_frames_every_visible_marker_corner_even_past_90_degrees():

@@ -1,5 +1,6 @@
 """One-axis sweeps: rows, physics the sweep must show, boundaries, validation, the plot."""
 
+import json
 import math
 
 import numpy as np
@@ -16,8 +17,11 @@ from bench.sweeps import (
     run_sweeps,
 )
 from pipeline.presets import PRESETS
+from scenes.profile import load_profile
 
+# The mechanics are tested on the ideal camera, whose behaviour at these points is known.
 TINY = SweepConfig(
+    camera=load_profile("ideal"),
     alphas_deg=(40.0, 92.0),
     phis_deg=(0.0, 30.0),
     lightings=("lab", "sun"),
@@ -91,6 +95,7 @@ def test_seeds_differ_and_the_run_is_reproducible(table, variant):
     again = run_sweeps(
         [PRESETS["robust"]],
         SweepConfig(
+            camera=load_profile("ideal"),
             alphas_deg=(40.0,),
             phis_deg=(30.0,),
             lightings=("sun",),
@@ -229,3 +234,17 @@ def test_plot_is_written(table, tmp_path):
     plot_sweeps(table, path)
     assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert [p.name for p in path.parent.iterdir()] == ["sweeps.png"]  # no temporary file left
+
+
+def test_a_sweep_runs_on_the_prototype_twin_with_its_own_read_noise(variant):
+    config = SweepConfig(
+        alphas_deg=(40.0,), phis_deg=(30.0,), lightings=("lab",), blur_px=(0.0,),
+        read_noise_e=(2.0,), seeds=1, images=3, spp=4,
+    )  # fmt: skip
+    assert config.camera.name == "prototype"
+    table = run_sweeps([PRESETS["robust"]], config, variant=variant, progress=False)
+    assert len(table) == 5 and table["recall"].between(0, 1).all()
+    base = table[table["axis"] == "alpha_deg"]
+    assert json.loads(table.attrs["sweep_config"])["config"]["camera"]["name"] == "prototype"
+    assert len(base) == 1
+
