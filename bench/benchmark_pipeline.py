@@ -89,7 +89,7 @@ def time_pipeline(
         t0 = time.perf_counter()
         result = track(
             images,
-            config.camera,
+            config.camera.lens,
             markers,
             pipeline.detector,
             pipeline.search,

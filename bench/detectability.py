@@ -326,7 +326,7 @@ def run_cell(
     save_images: bool = False,
 ) -> dict:
     """Compute one cell at each PSF scale and write ``cells/<key>_x<scale>.parquet``
-    atomically; return stage timings (s) and the images each scale used."""
+    atomically; return stage timings (s), the images each scale used and its detection rate."""
     scales = config.psf_scales if psf_scales is None else psf_scales
     render = render_cell(config, cell)
     origin = (render.window.x0, render.window.y0)
@@ -334,7 +334,7 @@ def run_cell(
     T_gt = render.T_cam_marker
     gt = lens.project(transform_points(T_gt, marker_corners_marker(cell.size_mm)))
     timings = {"render_s": render.render_s, "optics_s": 0.0, "sensor_s": 0.0, "detect_s": 0.0}
-    used = {}
+    used, rates = {}, {}
     for scale in scales:
         profile = config.camera.with_psf_scale(scale)
         rng = np.random.default_rng(cell.seed_sequence(config.seed, scale))
@@ -376,7 +376,9 @@ def run_cell(
         with atomic_path(out_dir / "cells" / f"{cell.output_name(scale)}.parquet") as tmp:
             table.to_parquet(tmp, index=False)
         used[cell.output_name(scale)] = len(rows)
+        rates[scale] = k / len(rows)
     timings["images"] = used
+    timings["rates"] = rates
     return timings
 
 

@@ -16,6 +16,7 @@ from importlib import metadata
 from pathlib import Path
 
 import pandas as pd
+import pyarrow.parquet as pq
 
 from bench import report
 from bench.atomic import atomic_path, check_writable, write_bytes, write_json
@@ -60,11 +61,11 @@ class _CellTask:
     save_images: bool
 
 
-def _run_task(task: _CellTask) -> dict:
+def _run_task(task: _CellTask) -> tuple[_CellTask, dict]:
     start = time.perf_counter()
     timings = run_cell(task.config, task.cell, task.out_dir, task.scales, task.save_images)
     timings["cell_s"] = time.perf_counter() - start
-    return timings
+    return task, timings
 
 
 def _cell_path(out_dir: Path, cell: Cell, scale: float) -> Path:
@@ -91,10 +92,15 @@ def _refinement_cells(
     return [(cell, tuple(sorted(scales))) for cell, scales in wanted.items()]
 
 
-def _rates(out_dir: Path, done: list[tuple[Cell, float]]) -> pd.DataFrame:
+def _rates(
+    out_dir: Path, done: list[tuple[Cell, float]], known: dict[tuple[Cell, float], float]
+) -> pd.DataFrame:
+    """Detection rate of every finished cell: from this run's results, else from its file."""
     rows = []
     for cell, scale in done:
-        table = pd.read_parquet(_cell_path(out_dir, cell, scale), columns=["id_ok"])
+        if (cell, scale) not in known:  # resumed: computed by an earlier run
+            table = pd.read_parquet(_cell_path(out_dir, cell, scale), columns=["id_ok"])
+            known[(cell, scale)] = float(table["id_ok"].mean())
         rows.append(
             {
                 "lighting": cell.lighting,
@@ -102,7 +108,7 @@ def _rates(out_dir: Path, done: list[tuple[Cell, float]]) -> pd.DataFrame:
                 "size_mm": cell.size_mm,
                 "alpha_deg": cell.alpha_deg,
                 "phi_deg": cell.phi_deg,
-                "rate": float(table["id_ok"].mean()),
+                "rate": known[(cell, scale)],
             }
         )
     return pd.DataFrame(rows)
@@ -145,6 +151,7 @@ def run_study(
     t_cells = time.perf_counter()
     plan = [(cell, config.psf_scales) for cell in config.cells()]
     done: list[tuple[Cell, float]] = []
+    known: dict[tuple[Cell, float], float] = {}
     computed = rounds = 0
     with TaskPool(workers, init_worker, (chosen, threads)) as pool:
         while plan:
@@ -154,20 +161,19 @@ def run_study(
                 if todo:
                     tasks.append(_CellTask(config, cell, todo, out_dir, save_images))
             desc = "detectability cells" if rounds == 0 else f"refining tilts (round {rounds})"
-            for timings in pool.map(_run_task, tasks, desc=desc, progress=progress):
+            for task, timings in pool.map(_run_task, tasks, desc=desc, progress=progress):
                 for key in stage:
                     stage[key] += timings[key]
                 computed += len(timings["images"])
+                known.update({(task.cell, s): r for s, r in timings["rates"].items()})
             done += [(cell, s) for cell, scales in plan for s in scales]
-            plan = _refinement_cells(config, _rates(out_dir, done))
+            plan = _refinement_cells(config, _rates(out_dir, done, known))
             rounds += 1
     wall["cells_s"] = time.perf_counter() - t_cells
 
     # --- Tables
     t_tab = time.perf_counter()
-    images = pd.concat(
-        [pd.read_parquet(_cell_path(out_dir, c, s)) for c, s in done], ignore_index=True
-    )
+    images = pq.read_table([str(_cell_path(out_dir, c, s)) for c, s in done]).to_pandas()
     images = images.sort_values(report.CELL_KEYS + ["image_index"], kind="stable")
     with atomic_path(out_dir / "images.parquet") as tmp:
         images.to_parquet(tmp, index=False)

@@ -35,6 +35,9 @@ from scenes.lighting import Lighting, canopy_frame
 #: Rays are traced in chunks of exactly this size (the last one padded): a new wavefront size
 #: compiles a new kernel (~130 ms here), one fixed size compiles once and then reuses it.
 CHUNK_RAYS = 1 << 17
+#: A crop's few rays go in chunks of this size instead (a second fixed size: one more kernel
+#: per process), so that a small pass is not padded to a whole CHUNK_RAYS.
+SMALL_CHUNK_RAYS = 1 << 14
 #: Adaptive anti-aliasing: a pixel takes every sample where its 3 x 3 neighbourhood's first-pass
 #: samples spread by more than this fraction of their light (edges); elsewhere (flat patches,
 #: the smooth sky) its first samples stand for all, within this fraction.
@@ -195,67 +198,61 @@ class FisheyeRenderer:
         rng = np.random.default_rng(seed)
         h, w, s = window.height, window.width, self.spp
         first = _first_pass(s) if self.adaptive else np.arange(s)
-        keep = first[np.linspace(0, len(first) - 1, min(self.shadow_spp, len(first))).round()
-                     .astype(int)]  # fmt: skip
+        rest = np.setdiff1d(np.arange(s), first)
+        n_first = len(first)
+        keep = np.linspace(0, n_first - 1, min(self.shadow_spp, n_first)).round().astype(int)
         sky = np.zeros((h, w, 3), np.float32)
         sun = np.zeros_like(sky)
         shadow = np.full((h, w, len(keep), 3), np.nan, np.float32) if lighting.canopy else None
         # Row bands bound memory on full frames; a band's first pass fills about one chunk.
-        rows = max(1, CHUNK_RAYS // (w * len(first)))
+        rows = max(1, CHUNK_RAYS // (w * n_first))
         counter = [0]
         for r0 in range(0, h, rows):
             band = Window(window.x0, window.y0 + r0, w, min(rows, h - r0))
             positions = band.sample_positions(s, rng)  # (bh, w, s, 2): all samples, drawn once
-            traced = {k: np.zeros((*positions.shape[:3], 3), np.float32) for k in TRACED}
-            traced["position"][:] = np.nan
-            todo = np.zeros(positions.shape[:3], bool)
-            todo[:, :, first] = True
-            self._trace_samples(positions, todo, traced, seed, counter)
-            if len(first) < s:
+            shape = (band.height, w, n_first, 3)
+            a = self._trace_points(positions[:, :, first].reshape(-1, 2), seed, counter)
+            sky_a, sun_a = a["sky"].reshape(shape), a["sun"].reshape(shape)
+            rows_here = slice(r0, r0 + band.height)
+            sky[rows_here] = sky_a.mean(axis=2)
+            sun[rows_here] = sun_a.mean(axis=2)
+            if len(rest):
                 # An edge between any two first-pass samples of a 3 x 3 neighbourhood flags its
                 # pixels: an edge passing between one pixel's samples and the next pixel's is
                 # caught too, not only one crossing a pixel's own samples.
-                light = (traced["sky"][:, :, first] + traced["sun"][:, :, first]).sum(axis=-1)
+                light = (sky_a + sun_a).sum(axis=-1)
                 box = np.ones((3, 3), np.uint8)
                 hi = cv2.dilate(light.max(axis=2), box, borderType=cv2.BORDER_REPLICATE)
                 lo = cv2.erode(light.min(axis=2), box, borderType=cv2.BORDER_REPLICATE)
                 edge = hi - lo > ADAPTIVE_TOLERANCE * (np.abs(hi) + 1e-12)
-                rest = np.zeros_like(todo)
-                rest[edge] = True
-                rest[:, :, first] = False
-                self._trace_samples(positions, rest, traced, seed, counter)
-                for k in ("sky", "sun"):  # agreeing pixels: their first samples stand for all
-                    mean_first = traced[k][:, :, first].mean(axis=2, keepdims=True)
-                    traced[k][~edge] = np.broadcast_to(mean_first, traced[k].shape)[~edge]
-            rows_here = slice(r0, r0 + band.height)
-            sky[rows_here] = traced["sky"].mean(axis=2)
-            sun[rows_here] = traced["sun"].mean(axis=2)
+                n_edge = int(edge.sum())
+                b = self._trace_points(positions[edge][:, rest].reshape(-1, 2), seed, counter)
+                for out, part_a, key in ((sky, sky_a, "sky"), (sun, sun_a, "sun")):
+                    if not n_edge:
+                        break
+                    total = part_a[edge].sum(axis=1) + b[key].reshape(n_edge, -1, 3).sum(axis=1)
+                    out[rows_here][edge] = total / s
             if shadow is not None:
-                shadow[rows_here] = traced["position"][:, :, keep]
+                shadow[rows_here] = a["position"].reshape(shape)[:, :, keep]
         inside = self.camera.unproject(window.pixel_centres())[1]
         return RenderedWindow(window, sky, sun, shadow, inside)
 
-    def _trace_samples(
-        self,
-        positions: np.ndarray,
-        todo: np.ndarray,
-        traced: dict[str, np.ndarray],
-        seed: int,
-        counter: list[int],
-    ) -> None:
-        """Trace the samples marked in ``todo`` ((bh, w, s) bool) into ``traced`` in place."""
-        dirs, valid = self.camera.unproject(positions[todo])
-        lighting = self.scene.lighting
+    def _trace_points(
+        self, points_px: np.ndarray, seed: int, counter: list[int]
+    ) -> dict[str, np.ndarray]:
+        """Trace rays through (n, 2) sample positions: each of :data:`TRACED`, (n, 3) float32."""
+        dirs, valid = self.camera.unproject(points_px)
         out_all = {k: np.zeros((len(dirs), 3), np.float32) for k in TRACED}
         out_all["position"][:] = np.nan
         idx = np.flatnonzero(valid)
-        for start in range(0, len(idx), CHUNK_RAYS):
-            part = idx[start : start + CHUNK_RAYS]
+        chunk = CHUNK_RAYS if len(idx) > 4 * SMALL_CHUNK_RAYS else SMALL_CHUNK_RAYS
+        for start in range(0, len(idx), chunk):
+            part = idx[start : start + chunk]
             out = self._trace(
                 self.scene.scene,
                 self.integrator,
-                lighting,
-                _pad(dirs[part]),
+                self.scene.lighting,
+                _pad(dirs[part], chunk),
                 (seed * 7919 + counter[0]) & 0xFFFFFFFF,
             )
             counter[0] += 1
@@ -263,8 +260,7 @@ class FisheyeRenderer:
                 out_all[k][part] = out[k][: len(part)]
         if self.sky == "irradiance":
             out_all["sky"] = self._sky_radiance(dirs, valid, out_all)
-        for k in TRACED:
-            traced[k][todo] = out_all[k]
+        return out_all
 
     def _sky_radiance(
         self, dirs: np.ndarray, valid: np.ndarray, traced: dict[str, np.ndarray]
@@ -290,11 +286,11 @@ def _first_pass(spp: int) -> np.ndarray:
     return np.flatnonzero((col % 2 == 0) & (row % 2 == 0))
 
 
-def _pad(rays: np.ndarray) -> np.ndarray:
+def _pad(rays: np.ndarray, chunk: int = CHUNK_RAYS) -> np.ndarray:
     """Pad (n, 3) rays to a whole chunk (JIT variants only) with copies of the first ray."""
-    if not _is_jit() or len(rays) == CHUNK_RAYS:
+    if not _is_jit() or len(rays) == chunk:
         return rays
-    return np.concatenate([rays, np.broadcast_to(rays[:1], (CHUNK_RAYS - len(rays), 3))])
+    return np.concatenate([rays, np.broadcast_to(rays[:1], (chunk - len(rays), 3))])
 
 
 def canopy_visibility(

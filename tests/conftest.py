@@ -18,8 +18,10 @@ def rendered_pair(tmp_path_factory, variant):
         pytest.skip("frame rendering needs a JIT variant")
     from bench.dataset import DatasetConfig
     from bench.generate import run_dataset
+    from scenes.profile import load_profile
 
     config = DatasetConfig(
+        camera=load_profile("ideal"),  # pipeline tests on exact pixels, not the twin
         foliage=("soft",),
         distances=("intermediate",),
         branches=((), (100.0,)),

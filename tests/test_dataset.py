@@ -26,7 +26,7 @@ from scenes.profile import (
 #: The ideal camera: these tests check that 98% of the labeled markers are found, a check of the
 #: renderer and labels that an optics-limited twin would turn into a finding about its optics
 #: (the COLOUR twin below loses 5 of 13 markers in frame 0).
-IDEAL = CameraProfile()
+IDEAL = load_profile("ideal")
 SMALL = {
     "foliage": ("soft",),
     "distances": ("intermediate",),

@@ -187,5 +187,5 @@ def test_adaptive_antialiasing_matches_every_sample_everywhere(variant, lighting
     window = Window.around(outline, lens).aligned(16, lens)
     a, f = adaptive.render(window, seed=5).radiance(), full.render(window, seed=5).radiance()
     assert np.abs(a - f).max() <= ADAPTIVE_TOLERANCE * f.max()
-    # and the skipped samples were real savings: most pixels are flat
-    assert np.isclose(a, f, rtol=0, atol=1e-6).mean() > 0.9
+    # away from edges the two agree to float rounding
+    assert np.isclose(a, f, rtol=1e-5, atol=1e-7).mean() > 0.9

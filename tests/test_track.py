@@ -9,6 +9,7 @@ import pytest
 from pipeline.detect import DetectorConfig
 from pipeline.track import MarkerSet, Search, pose_arrays, track
 from scenes.camera import default_camera
+from scenes.profile import load_profile
 
 
 def test_pose_arrays_places_rows_and_leaves_nan_where_unseen() -> None:
@@ -42,6 +43,7 @@ def rendered(variant):
     from bench.dataset import DatasetConfig, SampleFrames, simulate_sample
 
     config = DatasetConfig(
+        camera=load_profile("ideal"),  # pipeline tests on exact pixels, not the twin
         foliage=("soft",),
         distances=("intermediate",),
         branches=((0.0,),),
