@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 from pathlib import Path
 
@@ -135,7 +136,28 @@ def add_compare_options(p: argparse.ArgumentParser) -> None:
         "--seeds", type=int, default=5, help="seeds per sweep level (default 5, at least 5)"
     )
     p.add_argument("--quick", action="store_true", help="a small sweep (2 seeds, few levels)")
+    p.add_argument(
+        "--camera",
+        metavar="PROFILE",
+        help="camera profile of the failure-boundary sweeps: a shipped name or a JSON file "
+        "(default: the dataset's own, from its samples' camera.json)",
+    )
     p.add_argument("--variant", help="Mitsuba variant (default: the fastest available)")
+
+
+def _sweep_camera(option: str | None, dataset: Path):
+    """The sweeps' camera profile: the option's, else the one the dataset was rendered with."""
+    from bench.detectability import StudyConfigError, profile_from_option
+
+    if option is None:
+        cameras = sorted(dataset.glob("*/camera.json"))[:1]
+        if not cameras:
+            return None  # run_compare refuses a folder without samples in its own words
+        option = str(cameras[0])
+    try:
+        return profile_from_option(option)
+    except StudyConfigError as exc:
+        raise ValueError(f"--camera: {exc.detail}") from None
 
 
 def cmd_compare(args: argparse.Namespace) -> int:
@@ -154,6 +176,9 @@ def cmd_compare(args: argparse.Namespace) -> int:
         sweep = SweepConfig(seeds=args.seeds)
     out = args.out or args.dataset / "compare"
     try:
+        camera = _sweep_camera(args.camera, args.dataset)
+        if camera is not None:
+            sweep = dataclasses.replace(sweep, camera=camera)
         summary = run_compare(args.dataset, args.pipelines, out, sweep, variant=args.variant)
     except (ValueError, FileNotFoundError) as exc:
         return fail(str(exc))

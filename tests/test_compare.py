@@ -49,3 +49,19 @@ def test_compare_writes_a_report_with_every_variant(rendered_pair, tmp_path):
     # bulk per-sample output stays beside the dataset, not in the report
     assert (rendered_pair / "scores" / "fast~window=3-23-10" / "samples.csv").exists()
     assert not list(out.rglob("*.parquet"))
+
+
+def test_the_sweeps_use_the_datasets_camera_unless_told(rendered_pair, tmp_path):
+    import pytest
+
+    from bench.cli import main
+    from bench.cli_pipeline import _sweep_camera
+
+    assert _sweep_camera(None, rendered_pair).name == "ideal"  # what the pair was rendered with
+    assert _sweep_camera("prototype", rendered_pair).name == "prototype"
+    with pytest.raises(ValueError, match="--camera: 'nope' is neither"):
+        _sweep_camera("nope", rendered_pair)
+    out = tmp_path / "never"
+    argv = ["compare", str(rendered_pair), "--quick", "--camera", "nope", "--out", str(out)]
+    assert main(argv) == 2
+    assert not out.exists()
