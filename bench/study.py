@@ -156,7 +156,9 @@ def run_study(
     with TaskPool(workers, init_worker, (chosen, threads)) as pool:
         while plan:
             tasks = []
-            for cell, scales in plan:
+            # Large markers first: they pass, and passing cells draw the most images, so the
+            # long tasks start early and the workers finish together.
+            for cell, scales in sorted(plan, key=lambda item: -item[0].size_mm):
                 todo = tuple(s for s in scales if not _cell_path(out_dir, cell, s).exists())
                 if todo:
                     tasks.append(_CellTask(config, cell, todo, out_dir, save_images))

@@ -244,10 +244,13 @@ class FisheyeRenderer:
         dirs, valid = self.camera.unproject(points_px)
         out_all = {k: np.zeros((len(dirs), 3), np.float32) for k in TRACED}
         out_all["position"][:] = np.nan
-        idx = np.flatnonzero(valid)
+        every = bool(valid.all())  # a crop inside the image circle: slices, not index lists
+        idx = np.arange(len(dirs)) if every else np.flatnonzero(valid)
         chunk = CHUNK_RAYS if len(idx) > 4 * SMALL_CHUNK_RAYS else SMALL_CHUNK_RAYS
         for start in range(0, len(idx), chunk):
-            part = idx[start : start + chunk]
+            end = min(start + chunk, len(idx))
+            part = slice(start, end) if every else idx[start:end]
+            n = end - start
             out = self._trace(
                 self.scene.scene,
                 self.integrator,
@@ -257,7 +260,7 @@ class FisheyeRenderer:
             )
             counter[0] += 1
             for k in TRACED:
-                out_all[k][part] = out[k][: len(part)]
+                out_all[k][part] = out[k][:n]
         if self.sky == "irradiance":
             out_all["sky"] = self._sky_radiance(dirs, valid, out_all)
         return out_all

@@ -19,7 +19,7 @@ import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -58,7 +58,7 @@ def _choice(path: str, value: Any, allowed: tuple[str, ...]) -> str:
 
 
 def _table(
-    section: str, theta: Any, columns: dict[str, Any], lo: float, hi: float, lo_open: bool = False
+    section: str, theta: Any, columns: dict[str, Any], lo: float, hi: float
 ) -> tuple[tuple[float, ...], dict[str, tuple[float, ...]]]:
     """Validate a field table: strictly increasing angles in [0, 180) and one value per angle."""
     if not isinstance(theta, list | tuple) or not theta:
@@ -71,39 +71,55 @@ def _table(
         path = f"{section}.{name}"
         if not isinstance(values, list | tuple) or len(values) != len(angles):
             raise ProfileError(path, f"needs {len(angles)} values, one per theta_deg")
-        out[name] = tuple(_number(path, v, lo, hi, lo_open) for v in values)
+        out[name] = tuple(_number(path, v, lo, hi) for v in values)
     return angles, out
 
 
-def _interp(theta_deg: tuple[float, ...], values: tuple[float, ...], at_deg: np.ndarray):
-    return np.interp(np.asarray(at_deg, dtype=float), theta_deg, values)
+class _FieldTable:
+    """Columns of values over field angle ``theta_deg``: validated, interpolated linearly.
+
+    A subclass is a frozen dataclass naming its JSON section, its value columns, their allowed
+    range and the value that means "this stage is off"."""
+
+    SECTION: ClassVar[str]
+    COLUMNS: ClassVar[tuple[str, ...]]
+    RANGE: ClassVar[tuple[float, float]]
+    NEUTRAL: ClassVar[float]
+
+    def __post_init__(self) -> None:
+        columns = {name: getattr(self, name) for name in self.COLUMNS}
+        angles, values = _table(self.SECTION, self.theta_deg, columns, *self.RANGE)
+        object.__setattr__(self, "theta_deg", angles)
+        for name, column in values.items():
+            object.__setattr__(self, name, column)
+
+    def columns_at(self, theta_deg: np.ndarray) -> tuple[np.ndarray, ...]:
+        """Each column at the given field angles (held constant past the table's ends)."""
+        at = np.asarray(theta_deg, dtype=float)
+        return tuple(np.interp(at, self.theta_deg, getattr(self, c)) for c in self.COLUMNS)
+
+    @property
+    def on(self) -> bool:
+        return any(v != self.NEUTRAL for c in self.COLUMNS for v in getattr(self, c))
 
 
 # --- Optics ------------------------------------------------------------------------------------
 
 
 @dataclass(frozen=True)
-class RelativeIllumination:
+class RelativeIllumination(_FieldTable):
     """Image irradiance relative to the axis, over field angle (1 = no fall-off)."""
 
+    SECTION, COLUMNS, RANGE, NEUTRAL = "relative_illumination", ("value",), (0.0, 1.0), 1.0
     theta_deg: tuple[float, ...] = (0.0,)
     value: tuple[float, ...] = (1.0,)
 
-    def __post_init__(self) -> None:
-        angles, cols = _table("relative_illumination", self.theta_deg, {"value": self.value}, 0, 1)
-        object.__setattr__(self, "theta_deg", angles)
-        object.__setattr__(self, "value", cols["value"])
-
     def at(self, theta_deg: np.ndarray) -> np.ndarray:
-        return _interp(self.theta_deg, self.value, theta_deg)
-
-    @property
-    def on(self) -> bool:
-        return any(v != 1.0 for v in self.value)
+        return self.columns_at(theta_deg)[0]
 
 
 @dataclass(frozen=True)
-class PsfTable:
+class PsfTable(_FieldTable):
     """Gaussian point-spread widths over field angle, in pixels.
 
     ``sigma_radial_px`` is the spread along the line from the image centre through the point
@@ -111,31 +127,15 @@ class PsfTable:
     spread across it (sagittal). Zero means a sharp (pixel-integrated only) image.
     """
 
+    SECTION, COLUMNS = "psf", ("sigma_radial_px", "sigma_tangential_px")
+    RANGE, NEUTRAL = (0.0, 20.0), 0.0
     theta_deg: tuple[float, ...] = (0.0,)
     sigma_radial_px: tuple[float, ...] = (0.0,)
     sigma_tangential_px: tuple[float, ...] = (0.0,)
 
-    def __post_init__(self) -> None:
-        angles, cols = _table(
-            "psf",
-            self.theta_deg,
-            {
-                "sigma_radial_px": self.sigma_radial_px,
-                "sigma_tangential_px": self.sigma_tangential_px,
-            },
-            0.0,
-            20.0,
-        )
-        object.__setattr__(self, "theta_deg", angles)
-        for name, values in cols.items():
-            object.__setattr__(self, name, values)
-
     def at(self, theta_deg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(sigma_radial_px, sigma_tangential_px) at the given field angles."""
-        return (
-            _interp(self.theta_deg, self.sigma_radial_px, theta_deg),
-            _interp(self.theta_deg, self.sigma_tangential_px, theta_deg),
-        )
+        return self.columns_at(theta_deg)
 
     def scaled(self, factor: float) -> PsfTable:
         """Every width times ``factor``: the sensitivity band's lever on the uncertain optics."""
@@ -146,45 +146,24 @@ class PsfTable:
             sigma_tangential_px=tuple(s * factor for s in self.sigma_tangential_px),
         )
 
-    @property
-    def on(self) -> bool:
-        return any(self.sigma_radial_px) or any(self.sigma_tangential_px)
-
 
 @dataclass(frozen=True)
-class LateralColour:
+class LateralColour(_FieldTable):
     """Red and blue image scale relative to green over field angle (1 = no lateral colour).
 
     A red scale of 1.001 at 80 degrees puts red light from that field 0.1% farther from the
     image centre than green light from the same point.
     """
 
+    SECTION, COLUMNS = "lateral_colour", ("red_scale", "blue_scale")
+    RANGE, NEUTRAL = (0.9, 1.1), 1.0
     theta_deg: tuple[float, ...] = (0.0,)
     red_scale: tuple[float, ...] = (1.0,)
     blue_scale: tuple[float, ...] = (1.0,)
 
-    def __post_init__(self) -> None:
-        angles, cols = _table(
-            "lateral_colour",
-            self.theta_deg,
-            {"red_scale": self.red_scale, "blue_scale": self.blue_scale},
-            0.9,
-            1.1,
-        )
-        object.__setattr__(self, "theta_deg", angles)
-        for name, values in cols.items():
-            object.__setattr__(self, name, values)
-
     def at(self, theta_deg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(red_scale, blue_scale) at the given field angles."""
-        return (
-            _interp(self.theta_deg, self.red_scale, theta_deg),
-            _interp(self.theta_deg, self.blue_scale, theta_deg),
-        )
-
-    @property
-    def on(self) -> bool:
-        return any(v != 1.0 for v in self.red_scale + self.blue_scale)
+        return self.columns_at(theta_deg)
 
 
 # --- Sensor, processing, stream ----------------------------------------------------------------
