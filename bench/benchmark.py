@@ -86,7 +86,11 @@ def bench_detectability(
     )
 
     # --- Full frames: a few cells, extrapolated to the grid
-    picks = [cells[int(i)] for i in np.linspace(0, len(cells) - 1, max(1, full_frame_cells))]
+    # The largest marker facing the camera on the axis (detected, so that the comparison of the
+    # two routes is about a detection, not two misses), then cells spread over the grid.
+    frontal = min(cells, key=lambda c: (-c.size_mm, c.alpha_deg, c.phi_deg))
+    spread = np.linspace(0, len(cells) - 1, max(1, full_frame_cells - 1) + 2)[1:-1]
+    picks = [frontal] + [cells[int(i)] for i in spread][: max(0, full_frame_cells - 1)]
     full = []
     for cell in picks:
         result = _full_frame_cell(config, cell, FULL_FRAME_IMAGES)
@@ -96,7 +100,7 @@ def bench_detectability(
             & (crop_rates.alpha_deg == cell.alpha_deg)
             & (crop_rates.phi_deg == cell.phi_deg)
             & (crop_rates.lighting == cell.lighting)
-            & (crop_rates.psf_scale == config.psf_scales[0])
+            & (crop_rates.psf_scale == config.nominal_psf_scale)
         ]
         print(
             f"  full frame {cell.key}: render {result['render_s']:.1f} s, per image twin "

@@ -14,7 +14,8 @@ from pathlib import Path
 from bench.atomic import check_writable, write_json
 from bench.cli_args import float_list
 from scenes.calibration_import import FORMATS, CalibrationError, import_calibration
-from scenes.camera import PARAM_NAMES, FisheyeCamera
+from scenes.camera import FisheyeCamera
+from scenes.lens_models import PARAM_NAMES
 from scenes.profile import CameraProfile, ProfileError, load_profile, shipped_profiles
 
 #: importer fields that are options of ``camera import``; any other field is in FILE

@@ -18,7 +18,7 @@ from pathlib import Path
 import pandas as pd
 import pyarrow.parquet as pq
 
-from bench import report
+from bench import report, report_plots
 from bench.atomic import atomic_path, check_writable, write_bytes, write_json
 from bench.detectability import (
     Cell,
@@ -195,9 +195,9 @@ def run_study(
     # --- Plots
     t_plot = time.perf_counter()
     for name, plot, table in (
-        ("max_phi.png", report.plot_max_phi, max_phi),
-        ("heatmap.png", report.plot_heatmap, summary),
-        ("pose_error.png", report.plot_pose_error, summary),
+        ("max_phi.png", report_plots.plot_max_phi, max_phi),
+        ("heatmap.png", report_plots.plot_heatmap, summary),
+        ("pose_error.png", report_plots.plot_pose_error, summary),
     ):
         with atomic_path(out_dir / name) as tmp:
             plot(table, tmp)

@@ -7,7 +7,8 @@ import cv2
 import numpy as np
 import pytest
 
-from scenes.camera import FisheyeCamera, valid_limit_rad
+from scenes.camera import FisheyeCamera
+from scenes.lens_models import valid_limit_rad
 
 # TUM-VI cam0, 512 x 512, a 195 deg lens calibrated in three models (facts, as published):
 # Basalt data/tumvi_512_ds_calib.json and tumvi_512_eucm_calib.json; ORB_SLAM3

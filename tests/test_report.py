@@ -23,13 +23,11 @@ from bench.report import (
     band,
     excludes_threshold,
     max_phi,
-    plot_heatmap,
-    plot_max_phi,
-    plot_pose_error,
     summarize,
     summary_to_csv_bytes,
     wilson_interval,
 )
+from bench.report_plots import plot_heatmap, plot_max_phi, plot_pose_error
 
 Z = 1.959963984540054
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
