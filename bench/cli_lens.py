@@ -109,6 +109,8 @@ def _summary(out: Path, report_path: Path, report: dict) -> str:
         if "full_well_e" in noise
         else f"noise not measured ({noise.get('skipped', 'no fit')})"
     )
+    if "not_applied" in noise:
+        noise_text += f" (reported, not written to the profile: {noise['not_applied']})"
     stream = report["stream"]
     stream_text = (
         f"MJPEG quality {stream['quality']} ({stream['chroma_subsampling']})"

@@ -207,7 +207,25 @@ def measure_lens(
         "stream": stream,
     }
     measured = with_psf(camera, report, solved, stem)
+    refused = _noise_refusal(profile)
+    if refused and "full_well_e" in report["noise"]:
+        report["noise"]["not_applied"] = refused  # reported, but the profile keeps its own
+        return measured, report
     return with_noise(measured, report["noise"], stem, jpeg=stream["codec"] == "mjpeg"), report
+
+
+def _noise_refusal(profile: CameraProfile) -> str | None:
+    """Why the photon-transfer fit must not replace the profile's sensor noise, or None.
+
+    The fit sees the noise of the decoded grey frames, which is the photosites' own noise only
+    for a grey sensor: demosaicing mixes neighbouring photosites into each pixel (on the
+    dataset's own video of the GRBG prototype twin it returned a 3,279 e- well and 0 e- read
+    noise for the set 6,457 and 2.02). Compression also removes noise; a fit through it is
+    written with a source saying so (JPEG q95 stills: within 1% of the set well).
+    """
+    if profile.sensor.cfa != "none":
+        return f"a {profile.sensor.cfa} colour sensor: the frames' noise is demosaiced"
+    return None
 
 
 _EDGE_KEYS = ("frame", "marker_id", "edge", "theta_deg", "psi_deg", "s_px", "s_err_px",

@@ -405,3 +405,12 @@ def test_parser_registers_lens_measure():
     )
     assert isinstance(args.footage, Path) and callable(args.func)
     assert isinstance(parser, argparse.ArgumentParser)
+
+
+def test_a_colour_sensors_photon_transfer_is_reported_not_written(still_marker_footage):
+    """Demosaicing mixes photosites: the fit on the frames is not the sensor's noise."""
+    footage = still_marker_footage[0]
+    colour = dataclasses.replace(PROFILE, sensor=dataclasses.replace(PROFILE.sensor, cfa="RGGB"))
+    profile, report = measure_lens(footage, colour, bin_deg=20.0)
+    assert "full_well_e" in report["noise"] and "demosaiced" in report["noise"]["not_applied"]
+    assert profile.sensor == colour.sensor
