@@ -86,6 +86,7 @@ def cmd_lens_measure(args: argparse.Namespace) -> int:
             bin_deg=args.bin_deg,
             max_frames=args.max_frames,
             still=args.still,
+            progress=True,
         )
     except FieldError as exc:
         return fail(f"{OPTION_OF_FIELD.get(exc.field, exc.field)}: {exc.detail}")

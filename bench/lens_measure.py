@@ -22,6 +22,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from tqdm import tqdm
 
 from bench.lens_calibrate import lens_variance, needs_calibration, processing_curve
 from bench.lens_edges import PIXEL_VARIANCE_PX2, edge_geometry, edge_samples, fit_edges
@@ -129,13 +130,14 @@ def measure_lens(
     max_frames: int = DEFAULT_MAX_FRAMES,
     still: bool = False,
     date: str | None = None,
+    progress: bool = False,
 ) -> tuple[CameraProfile, dict]:
     """The profile with PSF (and, where measured, sensor noise and stream) from the footage,
     and a report of every number behind it.
 
     ``footage``: a video file, a folder of images or a list of image paths; ``still`` treats
     every frame as one static scene for photon transfer (else still runs are detected);
-    ``date`` (ISO, default today) goes into the sources.
+    ``date`` (ISO, default today) goes into the sources; ``progress`` shows a bar over frames.
     Raises :class:`FootageError` when no marker edge is usable, MeasureConfigError for a bad
     setting.
     """
@@ -149,7 +151,9 @@ def measure_lens(
     stream = _stream(files, images)
     camera = with_stream(profile, stream, stem)  # the processing the footage went through
     # --- Frames: marker edges and still runs
-    frames, markers, edges = _scan(files, images, max_frames, profile, dictionary, lut, noise, name)
+    frames, markers, edges = _scan(
+        files, images, max_frames, profile, dictionary, lut, noise, name, progress
+    )
     used = [e for e in edges if e["status"] == "ok"]
     if not used:
         reasons = Counter(e["status"] for e in edges)
@@ -236,14 +240,17 @@ def _counts(counter: Counter) -> str:
     return ", ".join(f"{reason} {n}" for reason, n in counter.most_common())
 
 
-def _scan(files, images, max_frames, profile, dictionary, lut, noise, name):
+def _scan(files, images, max_frames, profile, dictionary, lut, noise, name, progress=False):
     """Read the frames once: fit every marker edge, feed photon transfer. Returns (frames,
     markers, edge fits)."""
     lens = profile.lens
     detector = DetectorConfig(dictionary=dictionary)
     frames = markers = 0
     edges: list[dict] = []
+    total = min(max_frames, len(files)) if images else max_frames
+    bar = tqdm(total=total, desc="lens measure", unit="frame", disable=not progress, leave=False)
     for frame in iter_frames(files, images, max_frames):
+        bar.update()
         if frame.shape != (lens.height_px, lens.width_px):
             raise FootageError(
                 f"{name}: frames are {frame.shape[1]} x {frame.shape[0]} px but the camera "
@@ -262,6 +269,7 @@ def _scan(files, images, max_frames, profile, dictionary, lut, noise, name):
         noise.add(frame)
         frames += 1
         markers += len(detections)
+    bar.close()
     return frames, markers, edges
 
 
