@@ -32,6 +32,7 @@ from bench.detectability import (
     DEFAULT_SIZES_MM,
     StudyConfig,
     StudyConfigError,
+    detector_from_option,
     profile_from_option,
 )
 from scenes.validation import FieldError
@@ -52,6 +53,7 @@ OPTION_OF_FIELD = {
     "camera": "--camera",
     "psf_scales": "--psf-scale",
     "exposure": "--exposure",
+    "detector": "--cell-px",
 }
 
 
@@ -105,6 +107,13 @@ def _add_study_options(p: argparse.ArgumentParser) -> None:
         default=(1.0,),
         help="factors on the profile's PSF widths; several draw the sensitivity band "
         "(make study: 0.5,0.75,1,1.25,1.5; default 1)",
+    )
+    p.add_argument(
+        "--cell-px",
+        type=int,
+        default=4,
+        help="pixels per code cell when OpenCV reads the bits (perspectiveRemovePixelPerCell), "
+        "2..32 (default 4, OpenCV's and the original system's)",
     )
     p.add_argument(
         "--exposure",
@@ -165,6 +174,7 @@ def study_config(args: argparse.Namespace) -> StudyConfig:
         camera=profile_from_option(args.camera),
         psf_scales=args.psf_scale,
         exposure=args.exposure,
+        detector=detector_from_option(args.cell_px),
     )
 
 

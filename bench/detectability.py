@@ -435,6 +435,14 @@ def _score_image(
     return row
 
 
+def detector_from_option(cell_px: int) -> DetectorConfig:
+    """``--cell-px``: the study's detector (OpenCV defaults, ``subpix``) with that bit sampling."""
+    try:
+        return DetectorConfig("4x4_50", "subpix", cell_px=cell_px)
+    except ValueError as exc:
+        raise StudyConfigError("detector", str(exc)) from None
+
+
 def profile_from_option(text: str) -> CameraProfile:
     """``--camera``: a shipped profile name or a JSON file; errors name the option."""
     try:

@@ -53,6 +53,10 @@ class DetectorConfig:
     adaptive_thresh_win_size_step: int = 10
     adaptive_thresh_constant: float = 7.0
     use_aruco3_detection: bool = False
+    #: Pixels per code cell when OpenCV reads the bits (its perspectiveRemovePixelPerCell,
+    #: default 4). Under a lens blur of about a fifth of a cell, 4 samples per cell misread bits
+    #: (see the detectability study in the README); more samples read the cell's centre.
+    cell_px: int = 4
 
     def __post_init__(self) -> None:
         if self.corner_refinement not in REFINEMENTS:
@@ -62,6 +66,10 @@ class DetectorConfig:
             )
         if not 0 < self.min_marker_perimeter_px < self.max_marker_perimeter_px:
             raise ValueError("need 0 < min_marker_perimeter_px < max_marker_perimeter_px")
+        if isinstance(self.cell_px, bool) or not isinstance(self.cell_px, int):
+            raise ValueError(f"cell_px={self.cell_px!r}: must be an integer in 2..32")
+        if not 2 <= self.cell_px <= 32:
+            raise ValueError(f"cell_px={self.cell_px}: allowed range is 2..32")
         get_dictionary(self.dictionary)
 
 
@@ -84,6 +92,7 @@ def _detector(config: DetectorConfig, side_px: int) -> cv2.aruco.ArucoDetector:
     p.adaptiveThreshWinSizeStep = config.adaptive_thresh_win_size_step
     p.adaptiveThreshConstant = config.adaptive_thresh_constant
     p.useAruco3Detection = config.use_aruco3_detection
+    p.perspectiveRemovePixelPerCell = config.cell_px
     return cv2.aruco.ArucoDetector(get_dictionary(config.dictionary), p)
 
 

@@ -118,6 +118,7 @@ CHOICES = {
     "aruco3": ("detector", lambda v: {"use_aruco3_detection": _on_off(v)}),
     "window": ("detector", _window),
     "constant": ("detector", lambda v: {"adaptive_thresh_constant": float(v)}),
+    "cell": ("detector", lambda v: {"cell_px": int(v)}),
     "search": ("search", lambda v: {"mode": v}),
     "margin": ("search", lambda v: {"margin_px": int(v)}),
     "pose": ("pipeline", lambda v: {"pose_method": v}),

@@ -71,3 +71,13 @@ def test_cli_refuses_a_bad_variant_in_one_line(tmp_path):
         assert run.returncode == 2, args
         assert len(run.stderr.strip().splitlines()) == 1, run.stderr
     assert not any(tmp_path.iterdir())
+
+
+def test_cell_choice_sets_the_bit_sampling():
+    import pytest
+
+    from pipeline.presets import get_pipeline
+
+    assert get_pipeline("paper/cell=8").detector.cell_px == 8
+    with pytest.raises(ValueError, match="cell_px=1: allowed range is 2..32"):
+        get_pipeline("paper/cell=1")
