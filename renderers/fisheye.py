@@ -35,8 +35,8 @@ from scenes.lighting import Lighting, canopy_frame
 #: Rays are traced in chunks of exactly this size (the last one padded): a new wavefront size
 #: compiles a new kernel (~130 ms here), one fixed size compiles once and then reuses it.
 CHUNK_RAYS = 1 << 17
-#: A crop's few rays go in chunks of this size instead (a second fixed size: one more kernel
-#: per process), so that a small pass is not padded to a whole CHUNK_RAYS.
+#: A crop's rays (up to 16 such chunks) go in chunks of this size instead, so that a small pass
+#: is not padded to a whole CHUNK_RAYS; a worker that renders only crops compiles one kernel.
 SMALL_CHUNK_RAYS = 1 << 14
 #: Adaptive anti-aliasing: a pixel takes every sample where its 3 x 3 neighbourhood's first-pass
 #: samples spread by more than this fraction of their light (edges); elsewhere (flat patches,
@@ -246,7 +246,7 @@ class FisheyeRenderer:
         out_all["position"][:] = np.nan
         every = bool(valid.all())  # a crop inside the image circle: slices, not index lists
         idx = np.arange(len(dirs)) if every else np.flatnonzero(valid)
-        chunk = CHUNK_RAYS if len(idx) > 4 * SMALL_CHUNK_RAYS else SMALL_CHUNK_RAYS
+        chunk = CHUNK_RAYS if len(idx) > 16 * SMALL_CHUNK_RAYS else SMALL_CHUNK_RAYS
         for start in range(0, len(idx), chunk):
             end = min(start + chunk, len(idx))
             part = slice(start, end) if every else idx[start:end]
