@@ -9,8 +9,8 @@ Sensor
     collects Poisson photo-electrons plus the dark signal, clips at the full well, has the mean dark
     signal subtracted (black-level correction: its shot noise stays) and gains Gaussian read noise
     (:func:`photosite_signal`). A colour sensor digitizes with a 12-bit ADC (MT9P001 datasheet:
-    12-bit ADC); the grey sensor is the ideal camera of :mod:`renderers.response`, whose signal
-    goes straight through the transfer curve to 8 bits.
+    12-bit ADC); the grey sensor is the ideal profile's camera (the project's camera before the
+    twin), whose signal goes straight through the transfer curve to 8 bits.
 
 Processing
     OpenCV's demosaicing (bilinear, edge-aware or VNG) on the 12-bit codes, then the transfer curve
