@@ -76,7 +76,7 @@ def _profile(args: argparse.Namespace) -> CameraProfile | str:
     try:
         return load_profile(args.camera)
     except ProfileError as exc:
-        return exc.detail if exc.field == "camera" else str(exc)
+        return exc.option_detail
 
 
 # --- show -------------------------------------------------------------------------------------

@@ -59,7 +59,7 @@ def add_lens_parser(subparsers: argparse._SubParsersAction, parser_class: type) 
 def cmd_lens_measure(args: argparse.Namespace) -> int:
     from bench.atomic import check_writable, write_json
     from bench.lens_measure import FootageError, measure_lens
-    from scenes.profile import load_profile
+    from scenes.profile import ProfileError, load_profile
     from scenes.validation import FieldError
 
     def fail(message: str) -> int:
@@ -71,8 +71,8 @@ def cmd_lens_measure(args: argparse.Namespace) -> int:
         return fail("--report: must differ from --out")
     try:
         profile = load_profile(args.camera)
-    except FieldError as exc:
-        return fail(f"--camera: {exc.detail if exc.field == 'camera' else exc}")
+    except ProfileError as exc:
+        return fail(f"--camera: {exc.option_detail}")
     try:
         for folder in {args.out.parent, report_path.parent}:
             check_writable(folder)

@@ -68,7 +68,7 @@ def cmd_detect(args: argparse.Namespace) -> int:
     try:
         camera = load_profile(args.camera).lens
     except ProfileError as exc:
-        return fail(f"--camera: {args.camera}: {exc}")
+        return fail(f"--camera: {exc.option_detail}")
     if not args.video.is_file():
         return fail(f"{args.video}: no such file")
     out = args.out or args.video.with_name(f"{args.video.stem}.{args.pipeline.folder_name}")

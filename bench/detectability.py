@@ -153,12 +153,6 @@ class StudyConfig:
         """The scale whose images are also refined and posed: 1, or the only scale given."""
         return 1.0 if 1.0 in self.psf_scales else self.psf_scales[0]
 
-    @property
-    def block_px(self) -> int:
-        """Crops start and end on this grid: the MJPEG blocks and the 2 x 2 Bayer tile."""
-        tile = 2 if self.camera.sensor.cfa != "none" else 1
-        return math.lcm(self.camera.stream.block_px, tile)
-
     def to_json(self) -> dict:
         out = dataclasses.asdict(self)
         out["camera"] = self.camera.to_json()
@@ -257,7 +251,7 @@ def render_cell(config: StudyConfig, cell: Cell, margin_px: int = 16) -> CellRen
     spec = MarkerSpec(config.dictionary, config.marker_id, cell.size_mm)
     window = Window.around(
         lens.project(carrier_outline(T_cam_marker, spec)), lens, margin_px=margin_px
-    ).aligned(config.block_px, lens)
+    ).aligned(config.camera.crop_grid_px, lens)
     renderer, _ = renderer_for(config, cell.lighting)
     renderer.scene.set_pose(T_cam_marker, cell.size_mm)
     render_seed = cell.seed_sequence(config.seed).generate_state(1)[0]
@@ -448,5 +442,4 @@ def profile_from_option(text: str) -> CameraProfile:
     try:
         return load_profile(text)
     except ProfileError as exc:
-        detail = exc.detail if exc.field == "camera" else str(exc)  # name a profile field
-        raise StudyConfigError("camera", detail) from None
+        raise StudyConfigError("camera", exc.option_detail) from None

@@ -258,7 +258,7 @@ def stage_costs(
     lens = profile.lens
     if origin_px is None:
         centre = lens.project(np.array([math.sin(math.pi / 4), 0.0, math.cos(math.pi / 4)]))
-        grid = math.lcm(profile.stream.block_px, 2)
+        grid = profile.crop_grid_px
         limits = (lens.width_px, lens.height_px)
         origin_px = tuple(
             int(max(0, min(c - s // 2, limit - s)) // grid * grid)

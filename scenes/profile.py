@@ -38,7 +38,14 @@ CHROMA_SUBSAMPLING = ("4:4:4", "4:2:2", "4:2:0")
 
 
 class ProfileError(FieldError):
-    """A bad camera-profile value; ``field`` is the dotted JSON path (e.g. ``psf.theta_deg``)."""
+    """A bad camera-profile value; ``field`` is the dotted JSON path (e.g. ``psf.theta_deg``),
+    or ``camera`` when the file itself cannot be read."""
+
+    @property
+    def option_detail(self) -> str:
+        """The message after a ``--camera`` option's name: the profile field where one is at
+        fault, else what is wrong with the file."""
+        return self.detail if self.field == "camera" else str(self)
 
 
 def _number(path: str, value: Any, lo: float, hi: float, lo_open: bool = False) -> float:
@@ -258,9 +265,11 @@ class CameraProfile:
     sources: dict[str, str] = field(default_factory=dict)
 
     @property
-    def colour(self) -> bool:
-        """Whether the twin needs colour radiance (a CFA or lateral colour)."""
-        return self.sensor.cfa != "none" or self.lateral_colour.on
+    def crop_grid_px(self) -> int:
+        """Crops start and end on this grid: the MJPEG blocks and the 2 x 2 Bayer tile, so a
+        crop sees the full frame's blocks and colour phase."""
+        tile = 2 if self.sensor.cfa != "none" else 1
+        return math.lcm(self.stream.block_px, tile)
 
     def with_psf_scale(self, factor: float) -> CameraProfile:
         return dataclasses.replace(self, psf=self.psf.scaled(factor))

@@ -19,7 +19,8 @@ def test_ideal_and_prototype_are_shipped_and_ideal_is_todays_camera():
     assert {"ideal", "prototype"} <= set(shipped_profiles())
     ideal = load_profile("ideal")
     assert dataclasses.replace(ideal, sources={}, description="") == CameraProfile()
-    assert not ideal.colour and not ideal.psf.on and ideal.stream.codec == "none"
+    assert ideal.sensor.cfa == "none" and not ideal.lateral_colour.on
+    assert not ideal.psf.on and ideal.stream.codec == "none" and ideal.crop_grid_px == 1
 
 
 @pytest.mark.parametrize("name", ["ideal", "prototype"])

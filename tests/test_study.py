@@ -65,7 +65,7 @@ def test_outputs(variant, tmp_path):
 
 def test_crops_start_on_the_mjpeg_block_grid(variant):
     config = StudyConfig(**TINY)
-    assert config.block_px == 16
+    assert config.camera.crop_grid_px == 16
     render = detectability.render_cell(config, Cell("sun", 13.2, 40.0, 30.0))
     w = render.window
     assert w.x0 % 16 == 0 and w.y0 % 16 == 0 and w.width % 16 == 0
