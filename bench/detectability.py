@@ -292,18 +292,46 @@ def camera_images(
     return sensor_images(irradiance, profile, rng, n, origin_px, exposure)
 
 
+class _Draws:
+    """A cell's camera images at one PSF scale, batch after batch, as the study draws them: an
+    unshadowed crop's optics run once for every batch; under a canopy each image has its own
+    shadow, so the optics run per batch. Keeps the time spent in optics and sensor."""
+
+    def __init__(self, config: StudyConfig, render: CellRender, cell: Cell, scale: float):
+        self.config, self.render, self.lighting = config, render, cell.lighting
+        self.profile = config.camera.with_psf_scale(scale)
+        self.rng = np.random.default_rng(cell.seed_sequence(config.seed, scale))
+        self.origin = (render.window.x0, render.window.y0)
+        self.optics_s = self.sensor_s = 0.0
+        self.steady = None
+        if not get_lighting(cell.lighting).canopy:
+            t0 = time.perf_counter()
+            self.steady = optical_image(render.rendered.radiance(), self.profile, self.origin)
+            self.optics_s += time.perf_counter() - t0
+
+    def draw(self, n: int) -> np.ndarray:
+        """The next ``n`` images: (n, H, W) uint8."""
+        t0 = time.perf_counter()
+        irradiance = self.steady
+        if irradiance is None:
+            radiance = clean_radiance(self.config, self.render, self.lighting, n, self.rng)
+            irradiance = optical_image(radiance, self.profile, self.origin)
+        t1 = time.perf_counter()
+        images = camera_images(
+            self.config, self.profile, self.lighting, irradiance, self.origin, n, self.rng
+        )
+        self.optics_s += t1 - t0
+        self.sensor_s += time.perf_counter() - t1
+        return images
+
+
 def cell_images(
     config: StudyConfig, cell: Cell, n_images: int, psf_scale: float = 1.0
 ) -> tuple[np.ndarray, object, np.ndarray]:
     """A cell's first ``n_images`` camera images as the study draws them, in one call:
     ((N, H, W) uint8, the crop's window, T_cam_marker)."""
     render = render_cell(config, cell)
-    origin = (render.window.x0, render.window.y0)
-    profile = config.camera.with_psf_scale(psf_scale)
-    rng = np.random.default_rng(cell.seed_sequence(config.seed, psf_scale))
-    radiance = clean_radiance(config, render, cell.lighting, n_images, rng)
-    irradiance = optical_image(radiance, profile, origin)
-    images = camera_images(config, profile, cell.lighting, irradiance, origin, n_images, rng)
+    images = _Draws(config, render, cell, psf_scale).draw(n_images)
     return images, render.window, render.T_cam_marker
 
 
@@ -335,29 +363,15 @@ def run_cell(
     timings = {"render_s": render.render_s, "optics_s": 0.0, "sensor_s": 0.0, "detect_s": 0.0}
     used, rates = {}, {}
     for scale in scales:
-        profile = config.camera.with_psf_scale(scale)
-        rng = np.random.default_rng(cell.seed_sequence(config.seed, scale))
+        draws = _Draws(config, render, cell, scale)
+        pose_scale = scale == config.nominal_psf_scale
         rows: list[dict] = []
         k = 0
-        steady = None  # the optics of an unshadowed crop run once for all its images
-        if not get_lighting(cell.lighting).canopy:
-            t0 = time.perf_counter()
-            steady = optical_image(render.rendered.radiance(), profile, origin)
-            timings["optics_s"] += time.perf_counter() - t0
         while len(rows) < config.images and not (rows and settled(k, len(rows))):
-            n = _next_count(len(rows), config.images) - len(rows)
+            images = draws.draw(_next_count(len(rows), config.images) - len(rows))
             t0 = time.perf_counter()
-            if steady is None:
-                radiance = clean_radiance(config, render, cell.lighting, n, rng)
-                irradiance = optical_image(radiance, profile, origin)
-            else:
-                irradiance = steady
-            t1 = time.perf_counter()
-            images = camera_images(config, profile, cell.lighting, irradiance, origin, n, rng)
-            t2 = time.perf_counter()
-            nominal = scale == config.nominal_psf_scale
             for image in images:
-                pose = nominal and len(rows) < POSE_IMAGES
+                pose = pose_scale and len(rows) < POSE_IMAGES
                 row = _score_image(config, cell, image, origin, gt, T_gt, pose)
                 row["image_index"] = len(rows)
                 if save_images:
@@ -366,9 +380,9 @@ def run_cell(
                     row["image_path"] = str(path)
                 k += row["id_ok"]
                 rows.append(row)
-            timings["optics_s"] += t1 - t0
-            timings["sensor_s"] += t2 - t1
-            timings["detect_s"] += time.perf_counter() - t2
+            timings["detect_s"] += time.perf_counter() - t0
+        timings["optics_s"] += draws.optics_s
+        timings["sensor_s"] += draws.sensor_s
         table = pd.DataFrame(rows)
         for name, value in reversed(list(dataclasses.asdict(cell).items())):
             table.insert(0, name, value)
