@@ -29,6 +29,7 @@ __all__ = [
     "THRESHOLD",
     "band",
     "excludes_threshold",
+    "passes",
     "max_phi",
     "summarize",
     "summary_to_csv_bytes",
@@ -112,6 +113,11 @@ _REQUIRED_IMAGE_COLUMNS: list[str] = [*CELL_KEYS, "detected", "id_ok", *IMAGE_ME
 
 # Rates are ratios of small integers; allow for the last-bit rounding of e.g. 57/60 vs 0.95.
 RATE_TOL = 1e-12
+
+
+def passes(rate, threshold: float = THRESHOLD):
+    """Whether a detection rate (scalar or array) reaches the threshold, up to RATE_TOL."""
+    return rate >= threshold - RATE_TOL
 
 # --------------------------------------------------------------------------------------
 # statistics
@@ -286,8 +292,8 @@ def max_phi(summary: pd.DataFrame, threshold: float = THRESHOLD) -> pd.DataFrame
     work = pd.DataFrame(
         {
             **{key: summary[key] for key in GROUP_KEYS},
-            "pass_point": phi.where(summary["detection_rate"] >= threshold - RATE_TOL),
-            "pass_lower": phi.where(summary["rate_lo"] >= threshold - RATE_TOL),
+            "pass_point": phi.where(passes(summary["detection_rate"], threshold)),
+            "pass_lower": phi.where(passes(summary["rate_lo"], threshold)),
             "n_images": summary["n_images"],
             "phi": phi,
             "undecided": ~excludes_threshold(summary["rate_lo"], summary["rate_hi"], threshold),

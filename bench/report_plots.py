@@ -24,11 +24,11 @@ from bench.report import (  # noqa: E402
     BAND_KEYS,
     CELL_KEYS,
     PERCENTILE,
-    RATE_TOL,
     REFINEMENTS,
     THRESHOLD,
     band,
     nominal_scale_of,
+    passes,
     require_columns,
 )
 
@@ -290,7 +290,7 @@ def plot_heatmap(
                 if np.isnan(rate):
                     ax.text(c, r, "-", ha="center", va="center", fontsize=fontsize)
                     continue
-                low = rate < threshold - RATE_TOL
+                low = not passes(rate, threshold)
                 label = _rate_label(rate) + ("" if decided[r, c] else "?")
                 ax.text(
                     c,

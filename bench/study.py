@@ -80,7 +80,7 @@ def _refinement_cells(
     keys = ["lighting", "psf_scale", "size_mm", "alpha_deg"]
     for (lighting, scale, size, alpha), group in rates.groupby(keys, sort=True):
         group = group.sort_values("phi_deg")
-        passing = group.loc[group["rate"] >= report.THRESHOLD, "phi_deg"]
+        passing = group.loc[report.passes(group["rate"]), "phi_deg"]
         if passing.empty:
             continue
         best = float(passing.max())
