@@ -52,7 +52,6 @@ class RenderedWindow:
     sky_rgb: np.ndarray  # (H, W, 3) float32, mean over the pixel's samples
     sun_rgb: np.ndarray  # (H, W, 3) float32, unshadowed by any canopy
     shadow_points_cam: np.ndarray | None  # (H, W, K, 3) float32 hit points (NaN: no hit)
-    inside: np.ndarray  # (H, W) bool: pixel centre inside the image circle
 
     def radiance(self, sun_visibility: np.ndarray | None = None) -> np.ndarray:
         """Linear RGB radiance: (H, W, 3), or (N, H, W, 3) for N canopy visibilities (N, H, W)."""
@@ -234,8 +233,7 @@ class FisheyeRenderer:
                     out[rows_here][edge] = total / s
             if shadow is not None:
                 shadow[rows_here] = a["position"].reshape(shape)[:, :, keep]
-        inside = self.camera.unproject(window.pixel_centres())[1]
-        return RenderedWindow(window, sky, sun, shadow, inside)
+        return RenderedWindow(window, sky, sun, shadow)
 
     def _trace_points(
         self, points_px: np.ndarray, seed: int, counter: list[int]
