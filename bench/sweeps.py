@@ -1,7 +1,7 @@
 """One-axis sweeps: where each pipeline variant stops detecting the array's marker.
 
 From a base point (the array's 13.2 mm marker 200 mm away at alpha 40 deg, tilted phi 30 deg, in
-``sun``, no motion blur, the sensor's own 3 e- read noise) one thing at a time is varied:
+``sun``, no motion blur, the camera profile's own read noise) one thing at a time is varied:
 
 ``alpha_deg``
     angular position in the field of view, the marker facing the camera (``alpha_axis_phi_deg``,
