@@ -248,28 +248,29 @@ def _scan(files, images, max_frames, profile, dictionary, lut, noise, name, prog
     frames = markers = 0
     edges: list[dict] = []
     total = min(max_frames, len(files)) if images else max_frames
-    bar = tqdm(total=total, desc="lens measure", unit="frame", disable=not progress, leave=False)
-    for frame in iter_frames(files, images, max_frames):
-        bar.update()
-        if frame.shape != (lens.height_px, lens.width_px):
-            raise FootageError(
-                f"{name}: frames are {frame.shape[1]} x {frame.shape[0]} px but the camera "
-                f"profile's lens is {lens.width_px} x {lens.height_px}"
-            )
-        linear = lut[frame]
-        detections = detect_markers(frame, detector)
-        samples = [
-            e
-            for d in detections
-            for e in edge_samples(linear, frame, d.corners_px, dictionary, d.marker_id)
-        ]
-        for result in fit_edges(samples):
-            result["frame"] = frames
-            edges.append(result)
-        noise.add(frame)
-        frames += 1
-        markers += len(detections)
-    bar.close()
+    with tqdm(
+        total=total, desc="lens measure", unit="frame", disable=not progress, leave=False
+    ) as bar:  # closed (cleared) before any error is printed
+        for frame in iter_frames(files, images, max_frames):
+            bar.update()
+            if frame.shape != (lens.height_px, lens.width_px):
+                raise FootageError(
+                    f"{name}: frames are {frame.shape[1]} x {frame.shape[0]} px but the camera "
+                    f"profile's lens is {lens.width_px} x {lens.height_px}"
+                )
+            linear = lut[frame]
+            detections = detect_markers(frame, detector)
+            samples = [
+                e
+                for d in detections
+                for e in edge_samples(linear, frame, d.corners_px, dictionary, d.marker_id)
+            ]
+            for result in fit_edges(samples):
+                result["frame"] = frames
+                edges.append(result)
+            noise.add(frame)
+            frames += 1
+            markers += len(detections)
     return frames, markers, edges
 
 
