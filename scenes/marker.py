@@ -28,7 +28,7 @@ BLACK_ALBEDO = 0.04
 
 def dictionary_names() -> list[str]:
     """Accepted dictionary names: OpenCV's ``DICT_*`` constants, lower case, without the prefix."""
-    return sorted(n[5:].lower() for n in dir(cv2.aruco) if n.startswith("DICT_"))
+    return sorted({n[5:].lower() for n in dir(cv2.aruco) if n.startswith("DICT_")})  # 16h5, 16H5
 
 
 def check_dictionary(name: str) -> str:
