@@ -3,7 +3,7 @@
 One row per frame and detected marker of the array (ids not on the array are dropped and
 counted): ``frame``, ``marker_id``, ``whisker``, ``c{0..3}_{x,y}_px`` (ArUco order),
 ``R_CM_{ij}``, ``t_CM_{x,y,z}_mm`` (T_cam_marker), ``reprojection_err_px``,
-``ambiguity_ratio``. The column names match :mod:`bench.labels`, so detections and ground truth
+``ambiguity_ratio``. The columns match the labels (bench.dataset.labels): detections and truth
 join on (frame, marker_id).
 """
 

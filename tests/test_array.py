@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from trimesh.transformations import rotation_matrix
 
-from bench.labels import corners_px
+from bench.dataset.labels import corners_px
 from scenes.array import (
     ArraySpec,
     ArraySpecError,

@@ -11,7 +11,7 @@ import yaml
 from test_calibration_import import kalibr_camchain
 from test_lens_models import TUM_DS, tum
 
-from bench.cli_camera import add_camera_parser
+from bench.cli.camera import add_camera_parser
 from scenes.calibration_import import import_calibration
 from scenes.camera import default_camera
 from scenes.profile import CameraProfile, Sensor, load_profile
@@ -19,9 +19,9 @@ from scenes.profile import CameraProfile, Sensor, load_profile
 
 def run(argv: list[str]) -> int:
     """bench.cli.main once it wires the camera parser; until then the same parser on its own."""
-    import bench.cli
+    import bench.cli.main
 
-    if hasattr(bench.cli, "add_camera_parser"):
+    if hasattr(bench.cli.main, "add_camera_parser"):
         return bench.cli.main(argv)
     parser = argparse.ArgumentParser(prog="whiskerbench")
     add_camera_parser(parser.add_subparsers(dest="command", required=True), argparse.ArgumentParser)

@@ -7,7 +7,7 @@ import dataclasses
 import numpy as np
 import pandas as pd
 
-from bench.compare import pareto_front
+from bench.evaluate.compare import pareto_front
 from pipeline.presets import PRESETS, get_pipeline
 
 
@@ -21,8 +21,8 @@ def test_pareto_front_keeps_only_undominated_points():
 
 
 def test_compare_writes_a_report_with_every_variant(rendered_pair, tmp_path):
-    from bench.compare import run_compare
-    from bench.sweeps import QUICK_SWEEP
+    from bench.evaluate.compare import run_compare
+    from bench.evaluate.sweeps import QUICK_SWEEP
 
     sweep = dataclasses.replace(
         QUICK_SWEEP, alphas_deg=(0.0, 90.0), phis_deg=(0.0,), lightings=("lab",), images=3
@@ -54,8 +54,8 @@ def test_compare_writes_a_report_with_every_variant(rendered_pair, tmp_path):
 def test_the_sweeps_use_the_datasets_camera_unless_told(rendered_pair, tmp_path):
     import pytest
 
-    from bench.cli import main
-    from bench.cli_pipeline import _sweep_camera
+    from bench.cli.evaluate import _sweep_camera
+    from bench.cli.main import main
 
     assert _sweep_camera(None, rendered_pair).name == "ideal"  # what the pair was rendered with
     assert _sweep_camera("prototype", rendered_pair).name == "prototype"

@@ -11,8 +11,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from bench.dataset import DatasetConfig, DatasetConfigError, SampleSpec, simulate_sample
-from bench.labels import corners_of_frame
+from bench.dataset.labels import corners_of_frame
+from bench.dataset.sample import DatasetConfig, DatasetConfigError, SampleSpec, simulate_sample
 from scenes.profile import (
     CameraProfile,
     LateralColour,
@@ -53,7 +53,7 @@ COLOUR = CameraProfile(
 def dataset(tmp_path_factory, variant):
     if variant.startswith("scalar"):
         pytest.skip("frame rendering needs a JIT variant")
-    from bench.generate import run_dataset
+    from bench.dataset.generate import run_dataset
 
     out = tmp_path_factory.mktemp("data")
     config = DatasetConfig(**SMALL)
@@ -62,8 +62,8 @@ def dataset(tmp_path_factory, variant):
 
 
 def test_sample_files_and_manifest(dataset) -> None:
-    from bench.dataset import sha256
-    from bench.video import video_info
+    from bench.common.video import video_info
+    from bench.dataset.sample import sha256
 
     config, out, manifest = dataset
     sample = config.samples()[0]
@@ -89,7 +89,7 @@ def test_sample_files_and_manifest(dataset) -> None:
 
 def test_markers_are_detected_where_the_labels_say(dataset) -> None:
     """Median corner error <= 0.3 px on the decoded video, lab lighting, sub-pixel refinement."""
-    from bench.video import read_video
+    from bench.common.video import read_video
     from pipeline.detect import DetectorConfig, detect_markers
 
     config, out, _ = dataset
@@ -125,7 +125,7 @@ def test_lead_in_has_no_contact_and_zero_deflection(dataset) -> None:
 
 
 def test_rerun_skips_verified_samples_and_redoes_broken_ones(dataset) -> None:
-    from bench.generate import run_dataset
+    from bench.dataset.generate import run_dataset
 
     config, out, manifest = dataset
     again = run_dataset(config, out, progress=False)
@@ -197,7 +197,7 @@ def _bad_profile_files(folder) -> dict[str, str]:
     ],
 )
 def test_bad_options_one_line_exit_2_nothing_written(tmp_path, capsys, args, option, says):
-    from bench.cli import main
+    from bench.cli.main import main
 
     files = _bad_profile_files(tmp_path)
     args = [files.get(a, a) for a in args]
@@ -228,7 +228,7 @@ def test_relative_illumination_darkens_the_frame_edges(variant) -> None:
     across the band's row follows the table (the lens' own field angles, interpolated)."""
     if variant.startswith("scalar"):
         pytest.skip("frame rendering needs a JIT variant")
-    from bench.dataset import SampleFrames
+    from bench.dataset.sample import SampleFrames
 
     plain = DatasetConfig(**SMALL)
     falloff = RelativeIllumination((0.0, 90.0), (1.0, 0.4))
@@ -254,8 +254,8 @@ def test_a_colour_twin_with_psf_and_mjpeg_runs_end_to_end(tmp_path, variant) -> 
     ``lines`` corners: OpenCV's ``subpix`` corners shift by about a PSF width under blur)."""
     if variant.startswith("scalar"):
         pytest.skip("frame rendering needs a JIT variant")
-    from bench.generate import run_dataset
-    from bench.video import read_video
+    from bench.common.video import read_video
+    from bench.dataset.generate import run_dataset
     from pipeline.detect import DetectorConfig, detect_markers
 
     config = DatasetConfig(**{**SMALL, "camera": COLOUR, "frames_step": 12})

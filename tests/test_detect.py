@@ -21,7 +21,7 @@ def sample_video(rendered_pair):
 
 @pytest.mark.parametrize("name", list(PRESETS))
 def test_every_preset_runs_and_paper_finds_the_branch(sample_video, tmp_path, name) -> None:
-    from bench.detect import run_detect
+    from bench.evaluate.detect import run_detect
     from scenes.profile import load_profile
 
     camera = load_profile(sample_video / "camera.json").lens
@@ -63,7 +63,7 @@ def test_unreadable_video_and_bad_camera_one_line_exit_2(tmp_path) -> None:
 
 
 def test_score_dataset_uses_the_twin_threshold_and_scores_every_sample(sample_video, tmp_path):
-    from bench.score import score_dataset
+    from bench.evaluate.score import score_dataset
 
     table = score_dataset(sample_video.parent, PRESETS["paper"], tmp_path)
     assert len(table) == 2 and (tmp_path / "samples.csv").exists()
@@ -78,7 +78,7 @@ def _cut(sample_video, tmp_path, frames) -> tuple:
     """A copy of the sample's video holding only ``frames`` (with its camera file)."""
     import itertools
 
-    from bench.video import read_video, write_video
+    from bench.common.video import read_video, write_video
 
     video = tmp_path / "cut.mp4"
     chosen = set(frames)
@@ -129,7 +129,7 @@ def test_a_marker_never_seen_is_reported(sample_video, tmp_path) -> None:
     """Black out whisker 0's marker in every frame: the estimate goes on and says so."""
     import itertools
 
-    from bench.video import read_video, write_video
+    from bench.common.video import read_video, write_video
 
     labels = pd.read_parquet(sample_video / "labels.parquet")
     first = labels[labels["whisker"] == 0]
@@ -158,7 +158,7 @@ def test_score_flags_a_sample_without_no_contact_frames(sample_video, tmp_path) 
     """A sample cut to start while a whisker is pushed is refused and reported, not scored."""
     import shutil
 
-    from bench.score import score_dataset
+    from bench.evaluate.score import score_dataset
 
     dataset = tmp_path / "data"
     shutil.copytree(sample_video.parent, dataset, ignore=shutil.ignore_patterns("scores"))

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bench.labels import corners_px
+from bench.dataset.labels import corners_px
 from renderers.frames import FrameSampling, marker_region
 from scenes.array import ArraySpec, T_cam_marker
 from scenes.camera import default_camera

@@ -13,12 +13,12 @@ import cv2
 import numpy as np
 import pytest
 
-from bench.cli import _Parser, main
-from bench.cli_lens import add_lens_parser
-from bench.lens_calibrate import lens_variance, marker_sheet
-from bench.lens_jpeg import ANNEX_K_LUMA, ijg_table, read_jpeg_header, stream_report
-from bench.lens_measure import FootageError, MeasureConfigError, measure_lens
-from bench.lens_noise import PhotonTransfer
+from bench.cli.lens import add_lens_parser
+from bench.cli.main import _Parser, main
+from bench.lens.calibrate import lens_variance, marker_sheet
+from bench.lens.jpeg import ANNEX_K_LUMA, ijg_table, read_jpeg_header, stream_report
+from bench.lens.measure import FootageError, MeasureConfigError, measure_lens
+from bench.lens.noise import PhotonTransfer
 from renderers.camera_twin import record
 from scenes.camera import FisheyeCamera
 from scenes.profile import CameraProfile, Processing, PsfTable, Sensor, Stream

@@ -1,4 +1,4 @@
-"""Tests for bench.report: Wilson interval, per-cell summary, max-phi, band, CSV and plots."""
+"""Tests for bench.study.report: Wilson interval, per-cell summary, max-phi, band, CSV and plots."""
 
 from __future__ import annotations
 
@@ -10,7 +10,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from bench.report import (
+from bench.study.plots import plot_heatmap, plot_max_phi, plot_pose_error
+from bench.study.report import (
     BAND_COLUMNS,
     CELL_KEYS,
     IMAGE_METRIC_COLUMNS,
@@ -27,7 +28,6 @@ from bench.report import (
     summary_to_csv_bytes,
     wilson_interval,
 )
-from bench.report_plots import plot_heatmap, plot_max_phi, plot_pose_error
 
 Z = 1.959963984540054
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"

@@ -6,7 +6,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from bench.score import branch_outcome, score_markers
+from bench.evaluate.score import branch_outcome, score_markers
 
 
 @pytest.mark.parametrize(

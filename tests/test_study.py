@@ -6,9 +6,9 @@ import json
 import pandas as pd
 import pytest
 
-from bench import detectability
-from bench.detectability import IMAGE_STEPS, Cell, StudyConfig, StudyConfigError, settled
-from bench.study import _refinement_cells, run_study
+from bench.study import cells
+from bench.study.cells import IMAGE_STEPS, Cell, StudyConfig, StudyConfigError, settled
+from bench.study.run import _refinement_cells, run_study
 
 # A coarse tilt resolution keeps the refinement to one round on this grid.
 TINY = dict(
@@ -66,7 +66,7 @@ def test_outputs(variant, tmp_path):
 def test_crops_start_on_the_mjpeg_block_grid(variant):
     config = StudyConfig(**TINY)
     assert config.camera.crop_grid_px == 16
-    render = detectability.render_cell(config, Cell("sun", 13.2, 40.0, 30.0))
+    render = cells.render_cell(config, Cell("sun", 13.2, 40.0, 30.0))
     w = render.window
     assert w.x0 % 16 == 0 and w.y0 % 16 == 0 and w.width % 16 == 0
 
@@ -93,7 +93,7 @@ def test_resume_skips_finished_cells_and_gives_the_same_answer(variant, tmp_path
 def test_a_crash_leaves_no_half_written_file_and_the_rerun_finishes(variant, tmp_path, monkeypatch):
     config = StudyConfig(**TINY)
     out = tmp_path / "crash"
-    real, calls = detectability.run_cell, []
+    real, calls = cells.run_cell, []
 
     def crash_on_third(*args, **kwargs):
         calls.append(1)
@@ -101,12 +101,12 @@ def test_a_crash_leaves_no_half_written_file_and_the_rerun_finishes(variant, tmp
             raise KeyboardInterrupt
         return real(*args, **kwargs)
 
-    monkeypatch.setattr("bench.study.run_cell", crash_on_third)
+    monkeypatch.setattr("bench.study.run.run_cell", crash_on_third)
     with pytest.raises(KeyboardInterrupt):
         run_study(config, out, progress=False)
     assert len(list((out / "cells").glob("*.parquet"))) == 2
     assert not (out / "summary.csv").exists() and not list(out.rglob("*.tmp*"))
-    monkeypatch.setattr("bench.study.run_cell", real)
+    monkeypatch.setattr("bench.study.run.run_cell", real)
     manifest = run_study(config, out, progress=False)
     assert manifest["cells_resumed"] == 2 and (out / "summary.csv").exists()
 
@@ -166,13 +166,13 @@ def test_refinement_bisects_between_the_last_pass_and_the_first_fail():
 
 
 def test_band_renders_each_geometry_once_for_every_scale(variant, tmp_path, monkeypatch):
-    real, renders = detectability.render_cell, []
+    real, renders = cells.render_cell, []
 
     def counting(*args, **kwargs):
         renders.append(args[1])
         return real(*args, **kwargs)
 
-    monkeypatch.setattr("bench.detectability.render_cell", counting)
+    monkeypatch.setattr("bench.cells.render_cell", counting)
     config, out, manifest = run(
         tmp_path, alphas_deg=(0.0,), phis_deg=(0.0,), psf_scales=(0.5, 1.0, 1.5)
     )
@@ -188,7 +188,7 @@ def test_crop_frames_every_visible_marker_corner_even_past_90_degrees():
     edges it holds them all."""
     import numpy as np
 
-    from bench.detectability import carrier_outline
+    from bench.study.cells import carrier_outline
     from renderers.window import Window
     from scenes.camera import default_camera
     from scenes.conventions import marker_corners_marker, transform_points
@@ -214,7 +214,7 @@ def test_reading_each_code_cell_with_more_pixels_recovers_a_blurred_marker(varia
     from pipeline.detect import DetectorConfig, detect_markers
 
     config = StudyConfig(**TINY)
-    images, window, _ = detectability.cell_images(config, Cell("sun", 13.2, 60.0, 0.0), 20)
+    images, window, _ = cells.cell_images(config, Cell("sun", 13.2, 60.0, 0.0), 20)
     found = {
         px: sum(
             any(d.marker_id == 0 for d in detect_markers(im, det, (window.x0, window.y0)))
@@ -226,6 +226,6 @@ def test_reading_each_code_cell_with_more_pixels_recovers_a_blurred_marker(varia
 
 
 def test_cell_px_option_is_validated():
-    from bench.cli import main
+    from bench.cli.main import main
 
     assert main(["detectability", "--cell-px", "1", "--out", "/nonexistent/never"]) == 2

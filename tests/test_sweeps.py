@@ -7,7 +7,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from bench.sweeps import (
+from bench.evaluate.sweeps import (
     AXES,
     SweepConfig,
     boundaries,

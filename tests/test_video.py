@@ -6,7 +6,14 @@ import cv2
 import numpy as np
 import pytest
 
-from bench.video import VideoInfo, draw_preview, read_video, video_info, write_preview, write_video
+from bench.common.video import (
+    VideoInfo,
+    draw_preview,
+    read_video,
+    video_info,
+    write_preview,
+    write_video,
+)
 
 H, W = 240, 320
 DICTIONARY = cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_50)

@@ -8,8 +8,9 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from bench.atomic import check_writable, write_json
-from bench.dataset import (
+from bench.common.atomic import check_writable, write_json
+from bench.common.executor import run_tasks
+from bench.dataset.sample import (
     DatasetConfig,
     DatasetConfigError,
     SampleSpec,
@@ -17,9 +18,8 @@ from bench.dataset import (
     sample_done,
     sha256,
 )
-from bench.detectability import init_worker
-from bench.executor import run_tasks
-from bench.study import package_versions
+from bench.study.cells import init_worker
+from bench.study.run import package_versions
 
 
 @dataclass(frozen=True)

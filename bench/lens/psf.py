@@ -3,7 +3,7 @@
 An edge whose normal makes angle ``psi`` with the radial direction sees the variance of the PSF
 along that normal: for a Gaussian with variances ``s_r^2`` (radial) and ``s_t^2`` (tangential),
 ``v = s_r^2 cos^2 psi + s_t^2 sin^2 psi``, where ``v`` is the edge's fitted variance less the
-pixel aperture's (and less what the camera's processing adds, :mod:`bench.lens_calibrate`). Per bin
+pixel aperture's (and less what the camera's processing adds, :mod:`bench.lens.calibrate`). Per bin
 this is a linear least-squares problem in (s_r^2, s_t^2); it needs edges at several ``psi``.
 Where they all share one orientation only an isotropic width can be told, and it is flagged.
 """

@@ -1,6 +1,6 @@
 """The detectability study's figures: max phi with its PSF band, the rate heatmap, pose errors.
 
-They draw the tables of :mod:`bench.report` (per-cell summary, per-scale max phi).
+They draw the tables of :mod:`bench.study.report` (per-cell summary, per-scale max phi).
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ from matplotlib.lines import Line2D  # noqa: E402
 from matplotlib.patches import Patch, Rectangle  # noqa: E402
 from matplotlib.ticker import FormatStrFormatter, FuncFormatter  # noqa: E402
 
-from bench.report import (  # noqa: E402
+from bench.study.report import (  # noqa: E402
     BAND_KEYS,
     CELL_KEYS,
     PERCENTILE,

@@ -4,7 +4,7 @@ The input is the per-image table written by the study (one row per rendered imag
 is one combination of :data:`CELL_KEYS`; every statistic here is computed per cell. The study's
 figure of merit (:func:`max_phi`) is derived per PSF scale from the per-cell summary, and
 :func:`band` collapses the scales into the nominal value and its sensitivity band. The figures
-are drawn by :mod:`bench.report_plots`.
+are drawn by :mod:`bench.study.plots`.
 """
 
 from __future__ import annotations

@@ -11,8 +11,8 @@ import math
 import sys
 from pathlib import Path
 
-from bench.atomic import check_writable, write_json
-from bench.cli_args import float_list
+from bench.cli.args import float_list
+from bench.common.atomic import check_writable, write_json
 from scenes.calibration_import import FORMATS, CalibrationError, import_calibration
 from scenes.camera import FisheyeCamera
 from scenes.lens_models import PARAM_NAMES

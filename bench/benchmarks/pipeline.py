@@ -22,11 +22,11 @@ import cv2
 import numpy as np
 import pandas as pd
 
-from bench.atomic import write_json
-from bench.benchmark_dataset import pick_sample
-from bench.dataset import DatasetConfig, SampleFrames, simulate_sample
-from bench.detectability import init_worker
-from bench.score import score_markers
+from bench.benchmarks.dataset import pick_sample
+from bench.common.atomic import write_json
+from bench.dataset.sample import DatasetConfig, SampleFrames, simulate_sample
+from bench.evaluate.score import score_markers
+from bench.study.cells import init_worker
 from pipeline.presets import PipelineConfig
 from pipeline.track import MarkerSet, track
 

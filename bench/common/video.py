@@ -55,7 +55,7 @@ import cv2  # noqa: E402
 import imageio_ffmpeg  # noqa: E402
 import numpy as np  # noqa: E402
 
-from bench.atomic import atomic_path
+from bench.common.atomic import atomic_path
 
 DEFAULT_QP = 12
 PRESET = "ultrafast"

@@ -29,8 +29,8 @@ import cv2
 import numpy as np
 import pandas as pd
 
-from bench.atomic import atomic_path, write_bytes
-from bench.report import REFINEMENTS, excludes_threshold, wilson_interval
+from bench.common.atomic import atomic_path, write_bytes
+from bench.study.report import REFINEMENTS, excludes_threshold, wilson_interval
 from pipeline.detect import DetectorConfig, detect_markers
 from pipeline.pose import estimate_pose
 from pipeline.refine import refine_corners_by_edges

@@ -19,7 +19,7 @@ from collections.abc import Callable, Sequence
 import cv2
 import numpy as np
 
-from bench.lens_edges import PIXEL_VARIANCE_PX2, black_cells, edge_samples, fit_edges
+from bench.lens.edges import PIXEL_VARIANCE_PX2, black_cells, edge_samples, fit_edges
 from pipeline.detect import DetectorConfig, detect_markers
 from renderers.camera_twin import STAGES, optical_image, sensor_images
 from scenes.profile import CameraProfile, PsfTable

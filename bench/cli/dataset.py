@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from bench.dataset import (
+from bench.dataset.sample import (
     DEFAULT_BRANCHES,
     DEFAULT_DISTANCES,
     DEFAULT_FOLIAGE,
@@ -14,7 +14,7 @@ from bench.dataset import (
     DatasetConfig,
     branches_name,
 )
-from bench.detectability import profile_from_option
+from bench.study.cells import profile_from_option
 from renderers.frames import FrameSampling
 
 #: A few short samples: one foliage, one distance, no / one / two branches, one outdoor pass.
@@ -159,8 +159,8 @@ def dataset_config(args: argparse.Namespace) -> DatasetConfig:
 
 
 def cmd_dataset(args: argparse.Namespace) -> int:
-    from bench.dataset import DatasetConfigError
-    from bench.generate import run_dataset
+    from bench.dataset.generate import run_dataset
+    from bench.dataset.sample import DatasetConfigError
 
     config = dataset_config(args)
     out = Path(args.out or ("data/quick" if args.quick else "data/default"))
@@ -184,7 +184,7 @@ def cmd_dataset(args: argparse.Namespace) -> int:
 
 
 def cmd_bench_dataset(args: argparse.Namespace) -> int:
-    from bench.benchmark_dataset import bench_dataset
+    from bench.benchmarks.dataset import bench_dataset
 
     bench_dataset(dataset_config(args), frames=args.frames, variant=args.variant, out_dir=args.out)
     return 0

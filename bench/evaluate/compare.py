@@ -3,11 +3,11 @@
 Per variant, measured in the same run on this machine:
 
 * **speed**: frames/s of detection and pose on full 2592 x 1944 frames with 13 markers, one
-  OpenCV thread (:mod:`bench.benchmark_pipeline`, the same frames for every variant);
+  OpenCV thread (:mod:`bench.benchmarks.pipeline`, the same frames for every variant);
 * **accuracy on the dataset**: :func:`bench.score.score_dataset` on every sample (branch outcome
   with the none-twin threshold, marker recall, deflection, corner and pose errors);
 * **failure boundaries**: detection recall and pose error against angular position, marker tilt,
-  lighting, motion blur and sensor noise, over several seeds (:mod:`bench.sweeps`).
+  lighting, motion blur and sensor noise, over several seeds (:mod:`bench.evaluate.sweeps`).
 
 The report (``report.md`` with PNG charts beside it) opens without a server. Per-sample outputs
 (detections tables and plots: bulk data) go to ``<dataset>/scores/<variant>/``, not beside the
@@ -30,14 +30,14 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
-from bench.atomic import atomic_path, write_bytes  # noqa: E402
-from bench.benchmark_pipeline import (  # noqa: E402
+from bench.benchmarks.pipeline import (  # noqa: E402
     SPEED_SAMPLE,
     full_frames,
     one_opencv_thread,
     time_pipeline,
 )
-from bench.detectability import init_worker  # noqa: E402
+from bench.common.atomic import atomic_path, write_bytes  # noqa: E402
+from bench.study.cells import init_worker  # noqa: E402
 from pipeline.presets import PipelineConfig  # noqa: E402
 
 #: Accuracy measures on the dataset: column, label, whether higher is better.
@@ -115,8 +115,8 @@ def run_compare(
 
     Speed: the best of repeats over ``speed_frames`` full frames, run for ``speed_seconds``.
     """
-    from bench.score import sample_records, score_dataset
-    from bench.sweeps import SweepConfig, boundaries, plot_sweeps, run_sweeps
+    from bench.evaluate.score import sample_records, score_dataset
+    from bench.evaluate.sweeps import SweepConfig, boundaries, plot_sweeps, run_sweeps
 
     dataset, out_dir = Path(dataset), Path(out_dir)
     names = [p.name for p in pipelines]

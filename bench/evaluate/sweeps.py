@@ -21,7 +21,7 @@ Images come from the camera twin (``camera``, a :class:`scenes.profile.CameraPro
 and stream stages run, the read noise replaced by the point's.
 
 Each distinct crop is rendered once per seed (:func:`clean_render`, composed from
-:mod:`bench.detectability`'s renderer and seeds), ``images`` camera images are drawn from it
+:mod:`bench.study.cells`'s renderer and seeds), ``images`` camera images are drawn from it
 and every pipeline gets the same images. A seed fixes the render's jitter and the noise through
 :meth:`bench.detectability.Cell.seed_sequence`, so a seed's images at a point do not depend on
 the rest of the grid; the levels of the blur and the noise axes share one render and one noise
@@ -68,8 +68,8 @@ import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 from tqdm import tqdm  # noqa: E402
 
-from bench.atomic import atomic_path  # noqa: E402
-from bench.detectability import (  # noqa: E402
+from bench.common.atomic import atomic_path  # noqa: E402
+from bench.study.cells import (  # noqa: E402
     Cell,
     StudyConfig,
     camera_images,
@@ -379,7 +379,7 @@ def score_images(
     """Detect and pose the marker in each image; the summary row of one pipeline.
 
     ``images``: (N, H, W) uint8 crops whose top-left pixel is ``offset_px`` in the full frame.
-    Ground truth and errors as in :mod:`bench.detectability`: an image's corner error is the mean
+    Ground truth and errors as in :mod:`bench.study.cells`: an image's corner error is the mean
     over the 4 corners of the distance (px) to the projected true corner; medians are over the
     images where the right id was found (pose errors: where the pose could also be solved).
     """

@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from bench.lens_measure import DEFAULT_BIN_DEG, DEFAULT_MAX_FRAMES
+from bench.lens.measure import DEFAULT_BIN_DEG, DEFAULT_MAX_FRAMES
 
 OPTION_OF_FIELD = {
     "dictionary": "--dictionary",
@@ -57,8 +57,8 @@ def add_lens_parser(subparsers: argparse._SubParsersAction, parser_class: type) 
 
 
 def cmd_lens_measure(args: argparse.Namespace) -> int:
-    from bench.atomic import check_writable, write_json
-    from bench.lens_measure import FootageError, measure_lens
+    from bench.common.atomic import check_writable, write_json
+    from bench.lens.measure import FootageError, measure_lens
     from scenes.profile import ProfileError, load_profile
     from scenes.validation import FieldError
 

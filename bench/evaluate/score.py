@@ -23,7 +23,7 @@ import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 from tqdm import tqdm  # noqa: E402
 
-from bench.atomic import atomic_path  # noqa: E402
+from bench.common.atomic import atomic_path  # noqa: E402
 from pipeline.presets import PipelineConfig  # noqa: E402
 
 CORNERS = [(f"c{k}_x_px", f"c{k}_y_px") for k in range(4)]
@@ -128,8 +128,8 @@ def score_dataset(dataset: Path, config: PipelineConfig, out_dir: Path) -> pd.Da
     without a twin, or for an ``online`` pipeline, it is inferred from the sample itself
     (column ``threshold_source``).
     """
-    from bench.detect import run_detect
-    from bench.video import video_info
+    from bench.common.video import video_info
+    from bench.evaluate.detect import run_detect
     from pipeline.branches import NoBaselineError, foliage_threshold
     from scenes.profile import load_profile
 

@@ -18,8 +18,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from bench.detectability import StudyConfig, camera_images, init_worker, renderer_for
-from bench.study import run_study
+from bench.study.cells import StudyConfig, camera_images, init_worker, renderer_for
+from bench.study.run import run_study
 from pipeline.detect import detect_markers
 from renderers.camera_twin import optical_image
 from scenes.study import study_pose

@@ -10,12 +10,11 @@ import os
 import sys
 from pathlib import Path
 
-from bench.cli_args import float_list
-from bench.cli_camera import add_camera_parser
-from bench.cli_dataset import OPTION_OF_FIELD as DATASET_OPTION_OF_FIELD
-from bench.cli_dataset import add_dataset_options, cmd_bench_dataset, cmd_dataset
-from bench.cli_lens import add_lens_parser
-from bench.cli_pipeline import (
+from bench.cli.args import float_list
+from bench.cli.camera import add_camera_parser
+from bench.cli.dataset import OPTION_OF_FIELD as DATASET_OPTION_OF_FIELD
+from bench.cli.dataset import add_dataset_options, cmd_bench_dataset, cmd_dataset
+from bench.cli.evaluate import (
     add_bench_pipeline_options,
     add_compare_options,
     add_detect_options,
@@ -25,7 +24,8 @@ from bench.cli_pipeline import (
     cmd_detect,
     cmd_score,
 )
-from bench.detectability import (
+from bench.cli.lens import add_lens_parser
+from bench.study.cells import (
     BAND_PSF_SCALES,
     DEFAULT_ALPHAS_DEG,
     DEFAULT_PHIS_DEG,
@@ -195,7 +195,7 @@ def default_out(config: StudyConfig, quick: bool) -> Path:
 
 
 def _cmd_detectability(args: argparse.Namespace) -> int:
-    from bench.study import run_study
+    from bench.study.run import run_study
 
     config = study_config(args)
     if args.workers < 1:
@@ -216,7 +216,7 @@ def _cmd_detectability(args: argparse.Namespace) -> int:
 
 
 def _cmd_bench_detectability(args: argparse.Namespace) -> int:
-    from bench.benchmark import bench_detectability
+    from bench.benchmarks.study import bench_detectability
 
     config = study_config(args)
     bench_detectability(

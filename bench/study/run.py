@@ -18,16 +18,17 @@ from pathlib import Path
 import pandas as pd
 import pyarrow.parquet as pq
 
-from bench import report, report_plots
-from bench.atomic import atomic_path, check_writable, write_bytes, write_json
-from bench.detectability import (
+from bench.common.atomic import atomic_path, check_writable, write_bytes, write_json
+from bench.common.executor import TaskPool
+from bench.study import plots as report_plots
+from bench.study import report
+from bench.study.cells import (
     Cell,
     StudyConfig,
     StudyConfigError,
     init_worker,
     run_cell,
 )
-from bench.executor import TaskPool
 
 PACKAGES = (
     "whiskerbench",

@@ -1,14 +1,14 @@
 """``whiskerbench lens measure``: fit a camera twin's optics, noise and stream from footage.
 
 From frames of ArUco markers (their black borders are slanted edges) the PSF widths along and
-across the radius are measured in bins of field angle (:mod:`bench.lens_edges`,
-:mod:`bench.lens_psf`); from runs of still frames, full well and read noise by photon transfer
-(:mod:`bench.lens_noise`); from the first JPEG frame's headers, the stream's quality and chroma
-subsampling (:mod:`bench.lens_jpeg`). What the camera's own processing (demosaicing,
+across the radius are measured in bins of field angle (:mod:`bench.lens.edges`,
+:mod:`bench.lens.psf`); from runs of still frames, full well and read noise by photon transfer
+(:mod:`bench.lens.noise`); from the first JPEG frame's headers, the stream's quality and chroma
+subsampling (:mod:`bench.lens.jpeg`). What the camera's own processing (demosaicing,
 sharpening, MJPEG) adds to an edge's width is found by running the profile's stages on sharp
-synthetic markers and taken off (:mod:`bench.lens_calibrate`). The result is the input profile
+synthetic markers and taken off (:mod:`bench.lens.calibrate`). The result is the input profile
 with the measured numbers replaced, each with a ``sources`` entry naming the footage and date
-(:mod:`bench.lens_profile`), plus a report.
+(:mod:`bench.lens.profile`), plus a report.
 
 Frames are streamed (at most ``max_frames`` are read) so memory stays bounded by a few frames.
 """
@@ -24,13 +24,13 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from bench.lens_calibrate import lens_variance, needs_calibration, processing_curve
-from bench.lens_edges import PIXEL_VARIANCE_PX2, edge_geometry, edge_samples, fit_edges
-from bench.lens_jpeg import stream_report
-from bench.lens_noise import PhotonTransfer
-from bench.lens_profile import with_noise, with_psf, with_stream
-from bench.lens_psf import solve_bins
-from bench.video import read_video
+from bench.common.video import read_video
+from bench.lens.calibrate import lens_variance, needs_calibration, processing_curve
+from bench.lens.edges import PIXEL_VARIANCE_PX2, edge_geometry, edge_samples, fit_edges
+from bench.lens.jpeg import stream_report
+from bench.lens.noise import PhotonTransfer
+from bench.lens.profile import with_noise, with_psf, with_stream
+from bench.lens.psf import solve_bins
 from pipeline.detect import DetectorConfig, detect_markers
 from pipeline.refine import LINEAR_LUTS  # code -> linear light per transfer curve
 from scenes.marker import check_dictionary

@@ -56,7 +56,7 @@ def add_detect_options(p: argparse.ArgumentParser) -> None:
 
 
 def cmd_detect(args: argparse.Namespace) -> int:
-    from bench.detect import run_detect
+    from bench.evaluate.detect import run_detect
     from scenes.profile import ProfileError, load_profile
 
     def fail(message: str) -> int:
@@ -101,7 +101,7 @@ def add_score_options(p: argparse.ArgumentParser) -> None:
 
 
 def cmd_score(args: argparse.Namespace) -> int:
-    from bench.score import score_dataset
+    from bench.evaluate.score import score_dataset
 
     out = args.out or args.dataset / "scores" / args.pipeline.folder_name
     try:
@@ -147,7 +147,7 @@ def add_compare_options(p: argparse.ArgumentParser) -> None:
 
 def _sweep_camera(option: str | None, dataset: Path):
     """The sweeps' camera profile: the option's, else the one the dataset was rendered with."""
-    from bench.detectability import StudyConfigError, profile_from_option
+    from bench.study.cells import StudyConfigError, profile_from_option
 
     if option is None:
         cameras = sorted(dataset.glob("*/camera.json"))[:1]
@@ -161,8 +161,8 @@ def _sweep_camera(option: str | None, dataset: Path):
 
 
 def cmd_compare(args: argparse.Namespace) -> int:
-    from bench.compare import run_compare
-    from bench.sweeps import QUICK_SWEEP, SweepConfig
+    from bench.evaluate.compare import run_compare
+    from bench.evaluate.sweeps import QUICK_SWEEP, SweepConfig
 
     def fail(message: str) -> int:
         print(f"whiskerbench compare: error: {message}", file=sys.stderr)
@@ -205,7 +205,7 @@ def add_bench_pipeline_options(p: argparse.ArgumentParser) -> None:
 
 
 def cmd_bench_pipeline(args: argparse.Namespace) -> int:
-    from bench.benchmark_pipeline import bench_pipeline
+    from bench.benchmarks.pipeline import bench_pipeline
 
     if args.frames < 2:
         print(f"whiskerbench bench: error: --frames: {args.frames}: must be >= 2", file=sys.stderr)

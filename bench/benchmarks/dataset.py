@@ -15,9 +15,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from bench.atomic import write_bytes, write_json
-from bench.dataset import DatasetConfig, SampleFrames, SampleSpec, simulate_sample
-from bench.detectability import init_worker
+from bench.common.atomic import write_bytes, write_json
+from bench.dataset.sample import DatasetConfig, SampleFrames, SampleSpec, simulate_sample
+from bench.study.cells import init_worker
 from pipeline.detect import DetectorConfig, detect_markers
 
 
@@ -46,8 +46,8 @@ def _detections(image: np.ndarray, detector: DetectorConfig) -> dict[int, np.nda
 
 def write_still(path: Path, image: np.ndarray, labels, frame: int, zone) -> None:
     """The zone of one frame with its ground truth drawn, as a PNG (the README's still)."""
-    from bench.labels import corners_of_frame
-    from bench.video import draw_preview
+    from bench.common.video import draw_preview
+    from bench.dataset.labels import corners_of_frame
 
     drawn = draw_preview(image, *corners_of_frame(labels, frame))
     crop = drawn[zone.y0 : zone.y0 + zone.height, zone.x0 : zone.x0 + zone.width]

@@ -9,8 +9,8 @@ Per sample: vegetation (:mod:`scenes.vegetation`) and a protocol (:mod:`scenes.m
 array's path; the mechanics (:mod:`scenes.mechanics`) give every whisker's deflection at every
 time sample; the frame renderer (:mod:`renderers.frames`) makes each frame's radiance and the
 camera twin (:mod:`renderers.camera_twin`, one :class:`~scenes.profile.CameraProfile`) records
-it: optics once per frame, then the sensor and stream stages; :mod:`bench.labels` makes the
-exact labels with the profile's lens; :mod:`bench.video` writes the videos.
+it: optics once per frame, then the sensor and stream stages; :mod:`bench.dataset.labels` makes the
+exact labels with the profile's lens; :mod:`bench.common.video` writes the videos.
 """
 
 from __future__ import annotations
@@ -27,8 +27,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from bench.atomic import atomic_path, write_json
-from bench.labels import corners_of_frame, label_table
+from bench.common.atomic import atomic_path, write_json
+from bench.dataset.labels import corners_of_frame, label_table
 from renderers.frames import FrameSampling
 from scenes.array import ArraySpec
 from scenes.lighting import get_lighting, lighting_names
@@ -372,7 +372,7 @@ class SampleFrames:
 
 def run_sample(config: DatasetConfig, sample: SampleSpec, out_dir: Path) -> dict:
     """Simulate, render and label one sample into ``out_dir / sample_id``; return its record."""
-    from bench.video import read_video, write_preview, write_video
+    from bench.common.video import read_video, write_preview, write_video
 
     t_start = time.perf_counter()
     folder = Path(out_dir) / sample.sample_id

@@ -19,7 +19,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from bench.atomic import atomic_path, write_json  # noqa: E402
+from bench.common.atomic import atomic_path, write_json  # noqa: E402
 from pipeline.branches import BranchEstimate, estimate_branches, online_threshold  # noqa: E402
 from pipeline.presets import PipelineConfig  # noqa: E402
 from pipeline.track import MarkerSet, pose_arrays, track  # noqa: E402
@@ -65,7 +65,7 @@ def run_detect(
     array: ArraySpec | None = None,
 ) -> dict:
     """Detect, estimate and write the outputs; return the branches.json content."""
-    from bench.video import read_video
+    from bench.common.video import read_video
 
     array = array or ArraySpec()
     markers = MarkerSet(array.marker_ids, array.marker_size_mm)

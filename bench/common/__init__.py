@@ -1,0 +1,1 @@
+"""Plumbing shared by every job: atomic file output, the process pool, video files."""

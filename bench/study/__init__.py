@@ -1,0 +1,2 @@
+"""The marker detectability study: per-cell rendering and scoring, the resumable run, the
+per-cell statistics and the figures."""
