@@ -16,8 +16,8 @@ def rendered_pair(tmp_path_factory, variant):
     and its no-branch twin. Rendered once per session (about 15 s)."""
     if variant.startswith("scalar"):
         pytest.skip("frame rendering needs a JIT variant")
+    from bench.dataset.config import DatasetConfig
     from bench.dataset.generate import run_dataset
-    from bench.dataset.sample import DatasetConfig
     from scenes.profile import load_profile
 
     config = DatasetConfig(

@@ -1,6 +1,5 @@
 """``whiskerbench camera show|project|import`` from the command line."""
 
-import argparse
 import csv
 import io
 import json
@@ -11,22 +10,15 @@ import yaml
 from test_calibration_import import kalibr_camchain
 from test_lens_models import TUM_DS, tum
 
-from bench.cli.camera import add_camera_parser
+from bench.cli.main import main
 from scenes.calibration_import import import_calibration
 from scenes.camera import default_camera
 from scenes.profile import CameraProfile, Sensor, load_profile
 
 
 def run(argv: list[str]) -> int:
-    """bench.cli.main once it wires the camera parser; until then the same parser on its own."""
-    import bench.cli.main
-
-    if hasattr(bench.cli.main, "add_camera_parser"):
-        return bench.cli.main(argv)
-    parser = argparse.ArgumentParser(prog="whiskerbench")
-    add_camera_parser(parser.add_subparsers(dest="command", required=True), argparse.ArgumentParser)
-    args = parser.parse_args(argv)
-    return args.func(args)
+    """The ``whiskerbench`` command line, in-process."""
+    return main(argv)
 
 
 def write_profile(tmp_path, lens, **sections):

@@ -22,7 +22,7 @@ def test_pareto_front_keeps_only_undominated_points():
 
 def test_compare_writes_a_report_with_every_variant(rendered_pair, tmp_path):
     from bench.evaluate.compare import run_compare
-    from bench.evaluate.sweeps import QUICK_SWEEP
+    from bench.evaluate.sweep_config import QUICK_SWEEP
 
     sweep = dataclasses.replace(
         QUICK_SWEEP, alphas_deg=(0.0, 90.0), phis_deg=(0.0,), lightings=("lab",), images=3

@@ -11,8 +11,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from bench.dataset.config import DatasetConfig, DatasetConfigError, SampleSpec
 from bench.dataset.labels import corners_of_frame
-from bench.dataset.sample import DatasetConfig, DatasetConfigError, SampleSpec, simulate_sample
+from bench.dataset.sample import simulate_sample
 from scenes.profile import (
     CameraProfile,
     LateralColour,

@@ -28,7 +28,8 @@ MODULES = 6  # 4x4 dictionary: 4 code bits + the black border on each side
 
 def _render_grid(size_mm: float) -> list[dict]:
     pytest.importorskip("mitsuba")
-    from bench.study.cells import Cell, StudyConfig, cell_images, init_worker
+    from bench.study.cells import cell_images, init_worker
+    from bench.study.config import Cell, StudyConfig
     from scenes.profile import Sensor, load_profile
 
     init_worker(None)

@@ -85,7 +85,8 @@ def test_sunlit_white_print_has_the_lambertian_radiance(render):
 
 @pytest.mark.parametrize("name", lighting_names())
 def test_marker_detected_facing_the_camera_in_every_lighting(variant, name):
-    from bench.study.cells import Cell, StudyConfig, cell_images
+    from bench.study.cells import cell_images
+    from bench.study.config import Cell, StudyConfig
     from pipeline.detect import detect_markers
     from scenes.profile import load_profile
 
@@ -169,7 +170,8 @@ print(" ".join(map(str, out.radiance().ravel().tolist())))
 def test_adaptive_antialiasing_matches_every_sample_everywhere(variant, lighting_name, alpha, phi):
     """The adaptive first pass skips samples only where light is flat: the crop equals the
     full-spp render of the same jitter to within the tolerance, edges included."""
-    from bench.study.cells import StudyConfig, carrier_outline, init_worker, renderer_for
+    from bench.study.cells import carrier_outline, init_worker, renderer_for
+    from bench.study.config import StudyConfig
     from renderers.fisheye import ADAPTIVE_TOLERANCE, FisheyeRenderer
     from renderers.window import Window
     from scenes.marker import MarkerSpec

@@ -7,7 +7,8 @@ import pandas as pd
 import pytest
 
 from bench.study import cells
-from bench.study.cells import IMAGE_STEPS, Cell, StudyConfig, StudyConfigError, settled
+from bench.study.cells import settled
+from bench.study.config import IMAGE_STEPS, Cell, StudyConfig, StudyConfigError
 from bench.study.run import _refinement_cells, run_study
 
 # A coarse tilt resolution keeps the refinement to one round on this grid.
@@ -172,7 +173,7 @@ def test_band_renders_each_geometry_once_for_every_scale(variant, tmp_path, monk
         renders.append(args[1])
         return real(*args, **kwargs)
 
-    monkeypatch.setattr("bench.cells.render_cell", counting)
+    monkeypatch.setattr("bench.study.cells.render_cell", counting)
     config, out, manifest = run(
         tmp_path, alphas_deg=(0.0,), phis_deg=(0.0,), psf_scales=(0.5, 1.0, 1.5)
     )

@@ -7,16 +7,11 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from bench.evaluate.sweeps import (
-    AXES,
-    SweepConfig,
-    boundaries,
-    motion_blur,
-    motion_kernel,
-    plot_sweeps,
-    run_sweeps,
-)
+from bench.evaluate.sweep_config import AXES, SweepConfig
+from bench.evaluate.sweep_report import boundaries, plot_sweeps
+from bench.evaluate.sweeps import run_sweeps
 from pipeline.presets import PRESETS
+from renderers.motion_blur import motion_blur, motion_kernel
 from scenes.profile import load_profile
 
 # The mechanics are tested on the ideal camera, whose behaviour at these points is known.
@@ -247,4 +242,3 @@ def test_a_sweep_runs_on_the_prototype_twin_with_its_own_read_noise(variant):
     base = table[table["axis"] == "alpha_deg"]
     assert json.loads(table.attrs["sweep_config"])["config"]["camera"]["name"] == "prototype"
     assert len(base) == 1
-

@@ -40,7 +40,8 @@ def rendered(variant):
     """A short rendered sample: (frames, labels, camera, markers)."""
     if variant.startswith("scalar"):
         pytest.skip("frame rendering needs a JIT variant")
-    from bench.dataset.sample import DatasetConfig, SampleFrames, simulate_sample
+    from bench.dataset.config import DatasetConfig
+    from bench.dataset.sample import SampleFrames, simulate_sample
 
     config = DatasetConfig(
         camera=load_profile("ideal"),  # pipeline tests on exact pixels, not the twin

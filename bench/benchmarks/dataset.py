@@ -16,7 +16,8 @@ import cv2
 import numpy as np
 
 from bench.common.atomic import write_bytes, write_json
-from bench.dataset.sample import DatasetConfig, SampleFrames, SampleSpec, simulate_sample
+from bench.dataset.config import DatasetConfig, SampleSpec
+from bench.dataset.sample import SampleFrames, simulate_sample
 from bench.study.cells import init_worker
 from pipeline.detect import DetectorConfig, detect_markers
 

@@ -24,7 +24,8 @@ import pandas as pd
 
 from bench.benchmarks.dataset import pick_sample
 from bench.common.atomic import write_json
-from bench.dataset.sample import DatasetConfig, SampleFrames, simulate_sample
+from bench.dataset.config import DatasetConfig
+from bench.dataset.sample import SampleFrames, simulate_sample
 from bench.evaluate.score import score_markers
 from bench.study.cells import init_worker
 from pipeline.presets import PipelineConfig

@@ -18,7 +18,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from bench.study.cells import StudyConfig, camera_images, init_worker, renderer_for
+from bench.study.cells import camera_images, init_worker, renderer_for
+from bench.study.config import StudyConfig
 from bench.study.run import run_study
 from pipeline.detect import detect_markers
 from renderers.camera_twin import optical_image
@@ -110,7 +111,8 @@ def bench_detectability(
     per_cell = np.mean(
         [
             r["render_s"]
-            + n_images / manifest["cells_total"]
+            + n_images
+            / manifest["cells_total"]
             * (r["response_s_per_image"] + r["detect_s_per_image"])
             for r in full
         ]

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from bench.dataset.sample import (
+from bench.dataset.config import (
     DEFAULT_BRANCHES,
     DEFAULT_DISTANCES,
     DEFAULT_FOLIAGE,
@@ -14,7 +14,7 @@ from bench.dataset.sample import (
     DatasetConfig,
     branches_name,
 )
-from bench.study.cells import profile_from_option
+from bench.study.config import profile_from_option
 from renderers.frames import FrameSampling
 
 #: A few short samples: one foliage, one distance, no / one / two branches, one outdoor pass.
@@ -159,8 +159,8 @@ def dataset_config(args: argparse.Namespace) -> DatasetConfig:
 
 
 def cmd_dataset(args: argparse.Namespace) -> int:
+    from bench.dataset.config import DatasetConfigError
     from bench.dataset.generate import run_dataset
-    from bench.dataset.sample import DatasetConfigError
 
     config = dataset_config(args)
     out = Path(args.out or ("data/quick" if args.quick else "data/default"))

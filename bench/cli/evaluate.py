@@ -147,7 +147,7 @@ def add_compare_options(p: argparse.ArgumentParser) -> None:
 
 def _sweep_camera(option: str | None, dataset: Path):
     """The sweeps' camera profile: the option's, else the one the dataset was rendered with."""
-    from bench.study.cells import StudyConfigError, profile_from_option
+    from bench.study.config import StudyConfigError, profile_from_option
 
     if option is None:
         cameras = sorted(dataset.glob("*/camera.json"))[:1]
@@ -162,7 +162,7 @@ def _sweep_camera(option: str | None, dataset: Path):
 
 def cmd_compare(args: argparse.Namespace) -> int:
     from bench.evaluate.compare import run_compare
-    from bench.evaluate.sweeps import QUICK_SWEEP, SweepConfig
+    from bench.evaluate.sweep_config import QUICK_SWEEP, SweepConfig
 
     def fail(message: str) -> int:
         print(f"whiskerbench compare: error: {message}", file=sys.stderr)

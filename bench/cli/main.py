@@ -25,7 +25,7 @@ from bench.cli.evaluate import (
     cmd_score,
 )
 from bench.cli.lens import add_lens_parser
-from bench.study.cells import (
+from bench.study.config import (
     BAND_PSF_SCALES,
     DEFAULT_ALPHAS_DEG,
     DEFAULT_PHIS_DEG,

@@ -10,14 +10,8 @@ from pathlib import Path
 
 from bench.common.atomic import check_writable, write_json
 from bench.common.executor import run_tasks
-from bench.dataset.sample import (
-    DatasetConfig,
-    DatasetConfigError,
-    SampleSpec,
-    run_sample,
-    sample_done,
-    sha256,
-)
+from bench.dataset.config import DatasetConfig, DatasetConfigError, SampleSpec
+from bench.dataset.sample import run_sample, sample_done, sha256
 from bench.study.cells import init_worker
 from bench.study.run import package_versions
 

@@ -116,7 +116,9 @@ def run_compare(
     Speed: the best of repeats over ``speed_frames`` full frames, run for ``speed_seconds``.
     """
     from bench.evaluate.score import sample_records, score_dataset
-    from bench.evaluate.sweeps import SweepConfig, boundaries, plot_sweeps, run_sweeps
+    from bench.evaluate.sweep_config import SweepConfig
+    from bench.evaluate.sweep_report import boundaries, plot_sweeps
+    from bench.evaluate.sweeps import run_sweeps
 
     dataset, out_dir = Path(dataset), Path(out_dir)
     names = [p.name for p in pipelines]

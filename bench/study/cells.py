@@ -19,10 +19,8 @@ where it stopped.
 from __future__ import annotations
 
 import dataclasses
-import math
 import time
-import zlib
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
@@ -30,163 +28,17 @@ import numpy as np
 import pandas as pd
 
 from bench.common.atomic import atomic_path, write_bytes
+from bench.study.config import IMAGE_STEPS, POSE_IMAGES, Cell, StudyConfig
 from bench.study.report import REFINEMENTS, excludes_threshold, wilson_interval
-from pipeline.detect import DetectorConfig, detect_markers
+from pipeline.detect import detect_markers
 from pipeline.pose import estimate_pose
 from pipeline.refine import refine_corners_by_edges
 from renderers.camera_twin import optical_image, sensor_images
 from scenes.conventions import marker_corners_marker, rotation_angle_deg, transform_points
 from scenes.lighting import get_lighting
-from scenes.marker import MarkerSpec, carrier_mesh, check_dictionary, get_dictionary
-from scenes.profile import CameraProfile, ProfileError, load_profile
-from scenes.study import MAX_PHI_DEG, study_pose
-from scenes.validation import FieldError
-
-DEFAULT_SIZES_MM = (8.8, 11.0, 13.2, 17.6)
-DEFAULT_ALPHAS_DEG = (0.0, 20.0, 40.0, 60.0, 70.0, 80.0, 85.0, 90.0)
-DEFAULT_PHIS_DEG = tuple(float(p) for p in range(0, 80, 10))
-#: The sensitivity band of ``make study``: the profile's PSF widths times each factor.
-BAND_PSF_SCALES = (0.5, 0.75, 1.0, 1.25, 1.5)
-#: Cumulative image counts at which a cell's Wilson interval is checked against 0.95 (report's
-#: THRESHOLD). All-detected cells are settled at 80 (the first step whose Wilson lower bound,
-#: 80/83.8 = 0.954, clears 0.95), never-detected ones at 10; cells near 0.95 go on to the cap.
-IMAGE_STEPS = (10, 30, 80, 160, 240, 400, 800)
-#: Corners and poses are computed on a cell's first images only: the images drawn beyond them
-#: (near-threshold cells, up to the cap) serve its detection rate, and 80 pose errors per cell
-#: already give its median, 95th percentile and maximum.
-POSE_IMAGES = 80
-
-
-class StudyConfigError(FieldError):
-    """A bad study setting; ``field`` names the StudyConfig field it concerns."""
-
-
-@dataclass(frozen=True)
-class StudyConfig:
-    """Everything that determines the study's numbers (and nothing that does not)."""
-
-    sizes_mm: tuple[float, ...] = DEFAULT_SIZES_MM
-    alphas_deg: tuple[float, ...] = DEFAULT_ALPHAS_DEG
-    phis_deg: tuple[float, ...] = DEFAULT_PHIS_DEG
-    images: int = 240  # cap per cell; fewer once the Wilson interval excludes 0.95
-    distance_mm: float = 200.0
-    lightings: tuple[str, ...] = ("sun",)
-    dictionary: str = "4x4_50"
-    marker_id: int = 0
-    seed: int = 0
-    spp: int = 16
-    camera: CameraProfile = field(default_factory=lambda: load_profile("prototype"))
-    psf_scales: tuple[float, ...] = (1.0,)
-    #: Linear radiance to sensor full scale, times the lighting preset's own exposure.
-    exposure: float = 1.0
-    #: Tilts are added between the last passing and first failing one until they are this close.
-    phi_resolution_deg: float = 2.5
-    detector: DetectorConfig = field(default_factory=lambda: DetectorConfig("4x4_50", "subpix"))
-
-    def __post_init__(self) -> None:
-        def fail(name: str, message: str) -> None:
-            raise StudyConfigError(name, message)
-
-        for name in ("sizes_mm", "alphas_deg", "phis_deg", "lightings", "psf_scales"):
-            values = tuple(getattr(self, name))
-            if not values:
-                fail(name, "needs at least one value")
-            if len(set(values)) != len(values):
-                fail(name, f"{list(values)}: a value is listed twice")
-            object.__setattr__(self, name, values)
-        if any(not (math.isfinite(s) and s > 0) for s in self.sizes_mm):
-            fail("sizes_mm", f"{list(self.sizes_mm)}: every size must be > 0 mm")
-        if any(not (math.isfinite(s) and 0 <= s <= 10) for s in self.psf_scales):
-            fail("psf_scales", f"{list(self.psf_scales)}: allowed range is 0..10")
-        if len(self.psf_scales) > 1 and 1.0 not in self.psf_scales:
-            fail(
-                "psf_scales",
-                f"{list(self.psf_scales)}: a band needs 1 (the profile's own PSF) among its scales",
-            )
-        if not isinstance(self.camera, CameraProfile):
-            fail("camera", f"{self.camera!r}: must be a CameraProfile")
-        theta_max = self.camera.lens.theta_max_deg
-        if any(not 0 <= a <= theta_max for a in self.alphas_deg):
-            fail(
-                "alphas_deg",
-                f"{list(self.alphas_deg)}: allowed range is 0..{theta_max:g} deg "
-                "(the camera's theta_max)",
-            )
-        if any(not 0 <= p <= MAX_PHI_DEG for p in self.phis_deg):
-            fail("phis_deg", f"{list(self.phis_deg)}: allowed range is 0..{MAX_PHI_DEG:g} deg")
-        if int(self.images) != self.images or not 1 <= self.images <= IMAGE_STEPS[-1]:
-            fail("images", f"{self.images}: must be an integer in 1..{IMAGE_STEPS[-1]}")
-        if not (math.isfinite(self.distance_mm) and self.distance_mm > 0):
-            fail("distance_mm", f"{self.distance_mm}: must be > 0 mm")
-        if not (math.isfinite(self.exposure) and 0 < self.exposure <= 1e6):
-            fail("exposure", f"{self.exposure}: allowed range is (0, 1e6]")
-        if not (math.isfinite(self.phi_resolution_deg) and 0.1 <= self.phi_resolution_deg <= 90):
-            fail("phi_resolution_deg", f"{self.phi_resolution_deg}: allowed range is 0.1..90 deg")
-        for name in self.lightings:
-            try:
-                get_lighting(name)
-            except ValueError as exc:
-                fail("lightings", str(exc))
-        try:
-            object.__setattr__(self, "dictionary", check_dictionary(self.dictionary))
-            MarkerSpec(self.dictionary, self.marker_id, self.sizes_mm[0])
-        except ValueError as exc:
-            fail("dictionary", str(exc))
-        if self.spp < 1:
-            fail("spp", f"{self.spp}: must be >= 1")
-        if self.detector.dictionary != self.dictionary:
-            object.__setattr__(
-                self, "detector", dataclasses.replace(self.detector, dictionary=self.dictionary)
-            )
-
-    def cells(self, phis_deg: tuple[float, ...] | None = None) -> list[Cell]:
-        return [
-            Cell(lighting, size, alpha, phi)
-            for lighting in self.lightings
-            for size in self.sizes_mm
-            for alpha in self.alphas_deg
-            for phi in (self.phis_deg if phis_deg is None else phis_deg)
-        ]
-
-    @property
-    def nominal_psf_scale(self) -> float:
-        """The scale whose images are also refined and posed: 1, or the only scale given."""
-        return 1.0 if 1.0 in self.psf_scales else self.psf_scales[0]
-
-    def to_json(self) -> dict:
-        out = dataclasses.asdict(self)
-        out["camera"] = self.camera.to_json()
-        return out
-
-
-@dataclass(frozen=True)
-class Cell:
-    """One tested geometry; its images exist once per PSF scale."""
-
-    lighting: str
-    size_mm: float
-    alpha_deg: float
-    phi_deg: float
-
-    @property
-    def key(self) -> str:
-        return f"{self.lighting}_s{self.size_mm:g}_a{self.alpha_deg:g}_p{self.phi_deg:g}"
-
-    def output_name(self, psf_scale: float) -> str:
-        return f"{self.key}_x{psf_scale:g}"
-
-    def seed_sequence(self, seed: int, psf_scale: float | None = None) -> np.random.SeedSequence:
-        """Seeds depend on the cell itself, not on the grid around it: a cell gives the same
-        images whatever else the study contains. The render seed takes no scale (one render
-        serves every scale); each scale's noise has its own stream."""
-        key = (
-            zlib.crc32(self.lighting.encode()),
-            *(round(v * 1000) for v in (self.size_mm, self.alpha_deg, self.phi_deg)),
-        )
-        if psf_scale is not None:
-            key = (*key, round(psf_scale * 1000) + 1)
-        return np.random.SeedSequence(seed, spawn_key=key)
-
+from scenes.marker import MarkerSpec, carrier_mesh, get_dictionary
+from scenes.profile import CameraProfile
+from scenes.study import study_pose
 
 # --- Per-process render state: one loaded scene per lighting, reused by every cell.
 _STATE: dict = {}
@@ -427,7 +279,11 @@ def _score_image(
     modules = int(get_dictionary(config.dictionary).markerSize) + 2
     corners = {"subpix": match[0].corners_px}
     corners["lines"] = refine_corners_by_edges(
-        image, corners["subpix"], lens, modules, origin,
+        image,
+        corners["subpix"],
+        lens,
+        modules,
+        origin,
         transfer=config.camera.processing.transfer,
     )
     for r, c in corners.items():
@@ -441,19 +297,3 @@ def _score_image(
         row[f"trans_err_mm_{r}"] = float(np.linalg.norm(est.T_cam_marker[:3, 3] - T_gt[:3, 3]))
         row[f"ambiguity_ratio_{r}"] = est.ambiguity_ratio
     return row
-
-
-def detector_from_option(cell_px: int) -> DetectorConfig:
-    """``--cell-px``: the study's detector (OpenCV defaults, ``subpix``) with that bit sampling."""
-    try:
-        return DetectorConfig("4x4_50", "subpix", cell_px=cell_px)
-    except ValueError as exc:
-        raise StudyConfigError("detector", str(exc)) from None
-
-
-def profile_from_option(text: str) -> CameraProfile:
-    """``--camera``: a shipped profile name or a JSON file; errors name the option."""
-    try:
-        return load_profile(text)
-    except ProfileError as exc:
-        raise StudyConfigError("camera", exc.option_detail) from None

@@ -119,6 +119,7 @@ def passes(rate, threshold: float = THRESHOLD):
     """Whether a detection rate (scalar or array) reaches the threshold, up to RATE_TOL."""
     return rate >= threshold - RATE_TOL
 
+
 # --------------------------------------------------------------------------------------
 # statistics
 # --------------------------------------------------------------------------------------
@@ -408,5 +409,3 @@ def require_columns(
         raise ValueError(f"{what} lacks columns: {missing}")
     if nonempty and table.empty:
         raise ValueError(f"{what} is empty")
-
-

@@ -22,13 +22,8 @@ from bench.common.atomic import atomic_path, check_writable, write_bytes, write_
 from bench.common.executor import TaskPool
 from bench.study import plots as report_plots
 from bench.study import report
-from bench.study.cells import (
-    Cell,
-    StudyConfig,
-    StudyConfigError,
-    init_worker,
-    run_cell,
-)
+from bench.study.cells import init_worker, run_cell
+from bench.study.config import Cell, StudyConfig, StudyConfigError
 
 PACKAGES = (
     "whiskerbench",
@@ -188,8 +183,7 @@ def run_study(
     write_bytes(out_dir / "max_phi.csv", report.summary_to_csv_bytes(band))
     counts = images.groupby(report.CELL_KEYS).size()
     images_used = {
-        Cell(lg, sz, al, ph).output_name(sc): int(n)
-        for (lg, sc, sz, al, ph), n in counts.items()
+        Cell(lg, sz, al, ph).output_name(sc): int(n) for (lg, sc, sz, al, ph), n in counts.items()
     }
     wall["tables_s"] = time.perf_counter() - t_tab
 

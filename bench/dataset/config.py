@@ -1,0 +1,204 @@
+"""What a dataset is: its sample grid, camera, array, sampling and seeds; validated when built."""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import math
+import zlib
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from renderers.frames import FrameSampling
+from scenes.array import ArraySpec
+from scenes.lighting import lighting_names
+from scenes.motion import MotionSpec, MotionSpecError, get_protocol
+from scenes.profile import CameraProfile, load_profile
+from scenes.validation import FieldError
+from scenes.vegetation import (
+    FOLIAGE_KINDS,
+    SAMPLING_PENETRATION_MM,
+    branch_reach_error,
+)
+
+DEFAULT_FOLIAGE = ("soft", "stiff", "sparse", "dense")
+DEFAULT_DISTANCES = ("far", "intermediate", "close")
+DEFAULT_BRANCHES: tuple[tuple[float, ...], ...] = (
+    (),
+    (0.0,),
+    (50.0,),
+    (100.0,),
+    (150.0,),
+    (0.0, 50.0),
+    (0.0, 100.0),
+)
+DEFAULT_PROTOCOLS = ("indoor", "outdoor")
+SAMPLE_FILES = ("video.mp4", "labels.parquet", "camera.json", "preview.mp4")
+SEED_NAMES = ("render", "vegetation", "noise")
+#: The lead-in holds the array this far (mm) short of the foliage front: no contact.
+APPROACH_CLEARANCE_MM = 15.0
+#: The camera twin a dataset is recorded through unless the config names another.
+DEFAULT_PROFILE = "prototype"
+#: Largest exposure multiplier accepted (the study's bound: linear radiance to full scale).
+MAX_EXPOSURE = 1e6
+
+
+def default_profile() -> CameraProfile:
+    return load_profile(DEFAULT_PROFILE)
+
+
+class DatasetConfigError(FieldError):
+    """An invalid dataset option; ``field`` names the config field."""
+
+
+def branches_name(branches_mm: tuple[float, ...]) -> str:
+    """'none', '0', '0+50': how a branch configuration appears in ids and on the command line."""
+    return "+".join(f"{b:g}" for b in branches_mm) if branches_mm else "none"
+
+
+@dataclass(frozen=True)
+class SampleSpec:
+    """One cell of the grid."""
+
+    foliage: str
+    distance: str
+    branches_mm: tuple[float, ...]
+    protocol: str
+    lighting: str
+
+    @property
+    def sample_id(self) -> str:
+        parts = (self.foliage, self.distance, branches_name(self.branches_mm), self.protocol)
+        return "-".join((*parts, self.lighting))
+
+    def seeds(self, seed: int) -> dict[str, int]:
+        """The sample's own seeds (render jitter, vegetation layout, sensor noise), from the
+        dataset seed and the sample id: independent of which other samples run."""
+        sequence = np.random.SeedSequence(seed, spawn_key=(zlib.crc32(self.sample_id.encode()),))
+        state = sequence.generate_state(3)
+        return {name: int(v) % 2**31 for name, v in zip(SEED_NAMES, state, strict=True)}
+
+
+@dataclass(frozen=True)
+class DatasetConfig:
+    """The grid and every rendering choice; validated on construction."""
+
+    foliage: tuple[str, ...] = DEFAULT_FOLIAGE
+    distances: tuple[str, ...] = DEFAULT_DISTANCES
+    branches: tuple[tuple[float, ...], ...] = DEFAULT_BRANCHES
+    protocols: tuple[str, ...] = DEFAULT_PROTOCOLS
+    lightings: tuple[str, ...] = ("sun",)
+    frames_step: int = 1
+    seed: int = 0
+    #: Protocol overrides (None keeps the protocol's own value).
+    speed_mm_s: float | None = None
+    amplitude_mm: float | None = None
+    passes: int | None = None
+    fps: float | None = None
+    exposure_ms: float = 8.0
+    #: Linear radiance to sensor full scale, times the lighting preset's own exposure.
+    exposure: float = 1.0
+    sampling: FrameSampling = field(default_factory=FrameSampling)
+    array: ArraySpec = field(default_factory=ArraySpec)
+    #: The camera twin: lens geometry (renderer and labels), optics, sensor and stream.
+    camera: CameraProfile = field(default_factory=default_profile)
+
+    def __post_init__(self) -> None:
+        for name, allowed in (
+            ("foliage", FOLIAGE_KINDS),
+            ("distances", tuple(SAMPLING_PENETRATION_MM)),
+            ("protocols", ("indoor", "outdoor")),
+            ("lightings", tuple(lighting_names())),
+        ):
+            values = getattr(self, name)
+            if not values:
+                raise DatasetConfigError(name, "needs at least one value")
+            bad = [v for v in values if v not in allowed]
+            if bad:
+                raise DatasetConfigError(
+                    name, f"unknown {', '.join(map(repr, bad))}; choose from {', '.join(allowed)}"
+                )
+        if not self.branches:
+            raise DatasetConfigError("branches", "needs at least one configuration")
+        if not isinstance(self.camera, CameraProfile):
+            raise DatasetConfigError("camera", f"{self.camera!r}: must be a CameraProfile")
+        e = self.exposure
+        if not (isinstance(e, int | float) and math.isfinite(e) and 0 < e <= MAX_EXPOSURE):
+            raise DatasetConfigError("exposure", f"{e!r}: allowed range is (0, {MAX_EXPOSURE:g}]")
+        self._check_lens()
+        if not (isinstance(self.frames_step, int) and self.frames_step >= 1):
+            raise DatasetConfigError(
+                "frames_step", f"must be an integer >= 1, got {self.frames_step}"
+            )
+        for protocol in self.protocols:
+            motion = self.motion(protocol)  # validates the overrides
+            if not 0 < self.exposure_ms <= 1000.0 / motion.fps:
+                raise DatasetConfigError(
+                    "exposure_ms",
+                    f"must be in (0, {1000.0 / motion.fps:g}] (one frame at {motion.fps:g} fps), "
+                    f"got {self.exposure_ms}",
+                )
+            for branches in self.branches:
+                for distance in self.distances:
+                    if not all(math.isfinite(b) for b in branches):
+                        raise DatasetConfigError("branches", f"{branches} is not finite")
+                    error = branch_reach_error(branches, distance, self.array, motion.amplitude_mm)
+                    if error:
+                        raise DatasetConfigError("branches", error)
+
+    def _check_lens(self) -> None:
+        """The profile's lens must see every marker at any deflection and make even-sized
+        frames (4:2:0 video)."""
+        from renderers.frames import marker_region
+
+        lens = self.camera.lens
+        if lens.width_px % 2 or lens.height_px % 2:
+            raise DatasetConfigError(
+                "camera", f"{lens.width_px}x{lens.height_px} px: the video needs an even size"
+            )
+        try:
+            marker_region(lens, self.array, margin_px=0)
+        except ValueError as exc:
+            raise DatasetConfigError("camera", f"{self.camera.name}: {exc}") from None
+
+    def motion(self, protocol: str, distance: str = "close") -> MotionSpec:
+        """The protocol with this config's overrides, withdrawn just clear of the foliage."""
+        overrides = {
+            "approach_mm": SAMPLING_PENETRATION_MM[distance] + APPROACH_CLEARANCE_MM,
+            "speed_mm_s": self.speed_mm_s,
+            "amplitude_mm": self.amplitude_mm,
+            "passes": self.passes,
+            "fps": self.fps,
+        }
+        try:
+            return dataclasses.replace(
+                get_protocol(protocol), **{k: v for k, v in overrides.items() if v is not None}
+            )
+        except MotionSpecError as exc:
+            raise DatasetConfigError(exc.field, exc.detail) from None
+
+    def samples(self) -> list[SampleSpec]:
+        return [
+            SampleSpec(f, d, tuple(float(x) for x in b), p, light)
+            for light in self.lightings
+            for p in self.protocols
+            for f in self.foliage
+            for d in self.distances
+            for b in self.branches
+        ]
+
+    def to_json(self) -> dict:
+        """Every field as JSON; ``camera`` is the profile's own JSON (name and every stage)."""
+        out = dataclasses.asdict(self)
+        out["camera"] = self.camera.to_json()
+        return out
+
+    def settings_hash(self) -> str:
+        """Hash of everything but the grid selection: samples made with equal settings match."""
+        grid = ("foliage", "distances", "branches", "protocols", "lightings")
+        settings = {k: v for k, v in self.to_json().items() if k not in grid}
+        return hashlib.sha256(
+            json.dumps(settings, sort_keys=True, default=str).encode()
+        ).hexdigest()
