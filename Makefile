@@ -3,7 +3,7 @@ VENV ?= .venv
 PYTHON ?= python3
 BIN := $(VENV)/bin
 
-.PHONY: setup llvm study quick test bench bench-pipeline compare lint
+.PHONY: setup llvm study quick test test-fast bench bench-pipeline compare lint
 
 setup: $(VENV)/.installed llvm
 
@@ -37,6 +37,10 @@ quick: setup
 
 test: setup
 	$(BIN)/pytest -q
+
+# The inner loop: everything but the tests marked slow (rendered datasets, real runs), under 30 s.
+test-fast: setup
+	$(BIN)/pytest -q -m "not slow"
 
 bench: setup
 	$(BIN)/whiskerbench bench detectability

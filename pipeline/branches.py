@@ -6,15 +6,15 @@ Every stage is a small vectorized NumPy function over plain arrays. Axis convent
     frames of one sample, in time order;
 ``n``
     whiskers in array order, left to right in the image (index 0 .. n-1);
-``R_CM`` (F, n, 3, 3), ``t_CM`` (F, n, 3) in mm
-    the marker poses T_cam_marker of :mod:`scenes.conventions`, NaN where the marker was not
-    seen in that frame.
+``R_cam_marker`` (F, n, 3, 3), ``t_cam_marker`` (F, n, 3) in mm
+    the marker poses T_cam_marker (frames and notation: :mod:`scenes.conventions`), NaN where
+    the marker was not seen in that frame.
 
-Stages: :func:`no_contact_pose` (T_CM0, online), :func:`deflection_vectors` (translation of
-T_M0M) and :func:`deflection_mm` (SPEC 3.1), :func:`contact` (3.2), :func:`aggregate` (3.3),
-:func:`candidates` (3.4), :func:`peaks`, :func:`refine` (3.5); :func:`estimate_branches` composes
-them. :func:`foliage_threshold` is the paper's fixed threshold and :func:`online_threshold` infers
-one from the sample itself.
+Stages: :func:`no_contact_pose` (T_cam_marker0, online), :func:`deflection_vectors`
+(translation of T_marker0_marker) and :func:`deflection_mm` (SPEC 3.1), :func:`contact` (3.2),
+:func:`aggregate` (3.3), :func:`candidates` (3.4), :func:`peaks`, :func:`refine` (3.5);
+:func:`estimate_branches` composes them. :func:`foliage_threshold` is the paper's fixed
+threshold and :func:`online_threshold` infers one from the sample itself.
 
 Sign of the marker x axis: a marker's +x points towards increasing whisker index (to the right
 along the arc, the whisking direction). The marker sits behind the pivot, so it moves opposite to
@@ -39,7 +39,7 @@ MAD_TO_SIGMA = 1.4826
 
 
 class NoContactPose(NamedTuple):
-    """The no-contact pose T_CM0 per marker; unpacks as ``R0, t0, first_frame``."""
+    """The no-contact pose T_cam_marker0 per marker; unpacks as ``R0, t0, first_frame``."""
 
     R0: np.ndarray  # (n, 3, 3), NaN for a marker never seen
     t0: np.ndarray  # (n, 3) mm, NaN for a marker never seen
@@ -51,9 +51,9 @@ class NoContactPose(NamedTuple):
         return self.first_frame < 0
 
 
-def _seen_poses(R_CM: np.ndarray, t_CM: np.ndarray) -> np.ndarray:
+def _seen_poses(R_cam_marker: np.ndarray, t_cam_marker: np.ndarray) -> np.ndarray:
     """(F, n) bool: frames in which the marker's full pose is finite."""
-    return np.isfinite(t_CM).all(axis=-1) & np.isfinite(R_CM).all(axis=(-2, -1))
+    return np.isfinite(t_cam_marker).all(axis=-1) & np.isfinite(R_cam_marker).all(axis=(-2, -1))
 
 
 def _baseline(seen: np.ndarray, baseline_frames: int) -> np.ndarray:
@@ -109,29 +109,35 @@ def _project_to_rotation(M: np.ndarray) -> np.ndarray:
     return (U * D[..., None, :]) @ Vt
 
 
-def no_contact_pose(R_CM: np.ndarray, t_CM: np.ndarray, baseline_frames: int = 10) -> NoContactPose:
-    """T_CM0 per marker from the first ``baseline_frames`` frames in which the marker was seen.
+def no_contact_pose(
+    R_cam_marker: np.ndarray, t_cam_marker: np.ndarray, baseline_frames: int = 10
+) -> NoContactPose:
+    """T_cam_marker0 per marker from the first ``baseline_frames`` frames the marker was seen in.
 
     Online (SPEC 3.1): only the start of the sample is used, assumed contact-free (the
     whiskers are in free air before the sweep starts); a marker that appears late takes its
-    first frames wherever they are. Translation: the mean of those frames' t_CM. Rotation: the
-    chordal L2 mean, i.e. the mean of the rotation matrices projected back onto SO(3) by SVD
-    (a proper rotation average, exact for rotations symmetric about a common one).
+    first frames wherever they are. Translation: the mean of those frames' t_cam_marker.
+    Rotation: the chordal L2 mean, i.e. the mean of the rotation matrices projected back onto
+    SO(3) by SVD (a proper rotation average, exact for rotations symmetric about a common one).
 
-    R_CM (F, n, 3, 3), t_CM (F, n, 3) mm, NaN where unseen. A marker never seen gets NaN and
-    ``first_frame`` -1 (``.unseen``); ValueError if no marker was seen in any frame.
+    R_cam_marker (F, n, 3, 3), t_cam_marker (F, n, 3) mm, NaN where unseen. A marker never seen
+    gets NaN and ``first_frame`` -1 (``.unseen``); ValueError if no marker was seen in any frame.
     """
     if baseline_frames < 1:
         raise ValueError(f"baseline_frames must be >= 1, got {baseline_frames}")
-    seen = _seen_poses(R_CM, t_CM)
+    seen = _seen_poses(R_cam_marker, t_cam_marker)
     if not seen.any():
-        raise ValueError("no marker seen in any frame: no no-contact frames to take T_CM0 from")
+        raise ValueError(
+            "no marker seen in any frame: no no-contact frames to take T_cam_marker0 from"
+        )
     baseline = _baseline(seen, baseline_frames)
     count = baseline.sum(axis=0)  # (n,)
     unseen = count == 0
     weight = baseline / np.maximum(count, 1)  # (F, n), each seen column sums to 1
-    t0 = np.einsum("fn,fni->ni", weight, np.where(baseline[..., None], t_CM, 0.0))
-    R_mean = np.einsum("fn,fnij->nij", weight, np.where(baseline[..., None, None], R_CM, 0.0))
+    t0 = np.einsum("fn,fni->ni", weight, np.where(baseline[..., None], t_cam_marker, 0.0))
+    R_mean = np.einsum(
+        "fn,fnij->nij", weight, np.where(baseline[..., None, None], R_cam_marker, 0.0)
+    )
     R_mean[unseen] = np.eye(3)  # keeps the SVD finite; replaced by NaN below
     R0 = _project_to_rotation(R_mean)
     R0[unseen], t0[unseen] = np.nan, np.nan
@@ -139,17 +145,19 @@ def no_contact_pose(R_CM: np.ndarray, t_CM: np.ndarray, baseline_frames: int = 1
     return NoContactPose(R0, t0, first_frame)
 
 
-def deflection_vectors(t_CM: np.ndarray, R0: np.ndarray, t0: np.ndarray) -> np.ndarray:
-    """(F, n, 3) mm: translation of T_M0M = inv(T_CM0) @ T_CM, i.e. R0^T (t_CM - t0).
+def deflection_vectors(t_cam_marker: np.ndarray, R0: np.ndarray, t0: np.ndarray) -> np.ndarray:
+    """(F, n, 3) mm: translation of T_marker0_marker = inv(T_cam_marker0) @ T_cam_marker, i.e.
+    R0^T (t_cam_marker - t0).
 
-    The marker's own rotation R_CM does not enter the translation of T_M0M (SPEC 3.1 uses
-    only the translation), so only t_CM is taken. NaN where the marker was not seen.
+    The marker's own rotation R_cam_marker does not enter the translation of T_marker0_marker
+    (SPEC 3.1 uses only the translation), so only t_cam_marker is taken. NaN where the marker
+    was not seen.
     """
-    return np.einsum("nji,fnj->fni", R0, t_CM - t0)
+    return np.einsum("nji,fnj->fni", R0, t_cam_marker - t0)
 
 
 def deflection_mm(vectors: np.ndarray) -> np.ndarray:
-    """(...,) deflection sqrt(x^2 + y^2) in mm of (..., 3) T_M0M translations (SPEC 3.1)."""
+    """(...,) deflection sqrt(x^2 + y^2) mm of (..., 3) T_marker0_marker translations (SPEC 3.1)."""
     return np.hypot(vectors[..., 0], vectors[..., 1])
 
 
@@ -328,20 +336,21 @@ class BranchEstimate:
 
 
 def estimate_branches(
-    R_CM: np.ndarray,
-    t_CM: np.ndarray,
+    R_cam_marker: np.ndarray,
+    t_cam_marker: np.ndarray,
     threshold_mm: float,
     aggregation: str = "integration",
     baseline_frames: int = 10,
     contact_threshold_mm: float = 1.0,
     contact_window: int = 4,
 ) -> BranchEstimate:
-    """SPEC 3 from marker poses R_CM (F, n, 3, 3), t_CM (F, n, 3) mm (NaN where unseen).
+    """SPEC 3 from marker poses R_cam_marker (F, n, 3, 3), t_cam_marker (F, n, 3) mm (NaN where
+    unseen).
 
     ValueError when there are no no-contact frames to start from (:func:`check_baseline`).
     """
-    pose = no_contact_pose(R_CM, t_CM, baseline_frames)
-    vectors = deflection_vectors(t_CM, pose.R0, pose.t0)
+    pose = no_contact_pose(R_cam_marker, t_cam_marker, baseline_frames)
+    vectors = deflection_vectors(t_cam_marker, pose.R0, pose.t0)
     deflection = deflection_mm(vectors)
     check_baseline(vectors, baseline_frames, contact_threshold_mm)
     in_contact = contact(vectors, contact_threshold_mm, contact_window)

@@ -25,6 +25,7 @@ changes, for example ``paper/refine=contour/aruco3=on`` or ``fast/window=3-23-10
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass
 
 from pipeline.branches import AGGREGATIONS
@@ -33,6 +34,12 @@ from pipeline.pose import POSE_METHODS
 from pipeline.track import Search
 
 THRESHOLDS = ("fixed", "online")
+#: Largest adaptive-threshold window (px): wider than any marker's image in a full frame.
+MAX_WINDOW_PX = 1001
+#: Most threshold windows: each is one thresholding pass over the frame (OpenCV's default: 3).
+MAX_WINDOWS = 32
+#: Largest tracking margin (px): the full frame's width.
+MAX_MARGIN_PX = 4096
 
 
 @dataclass(frozen=True)
@@ -93,17 +100,49 @@ PRESETS: dict[str, PipelineConfig] = {
 
 def _window(text: str) -> dict:
     """``MIN[-MAX[-STEP]]`` adaptive-threshold window sizes (px); one size means MIN = MAX."""
-    sizes = [int(v) for v in text.split("-")]
+    sizes = [_integer(v) for v in text.split("-")]
     if not 1 <= len(sizes) <= 3:
         raise ValueError("window=MIN[-MAX[-STEP]]")
     lo, hi, step = (sizes + sizes[:1] + [10])[:3] if len(sizes) == 1 else (sizes + [10])[:3]
-    if lo < 3 or hi < lo or step < 1:
-        raise ValueError("window=MIN[-MAX[-STEP]]: need 3 <= MIN <= MAX and STEP >= 1")
+    if lo < 3 or hi < lo or step < 1 or hi > MAX_WINDOW_PX:
+        raise ValueError(
+            f"window=MIN[-MAX[-STEP]]: need 3 <= MIN <= MAX <= {MAX_WINDOW_PX} and STEP >= 1"
+        )
+    if (hi - lo) // step + 1 > MAX_WINDOWS:
+        raise ValueError(
+            f"{(hi - lo) // step + 1} windows: at most {MAX_WINDOWS} (each is one thresholding "
+            "pass over the frame)"
+        )
     return {
         "adaptive_thresh_win_size_min": lo,
         "adaptive_thresh_win_size_max": hi,
         "adaptive_thresh_win_size_step": step,
     }
+
+
+def _integer(text: str) -> int:
+    try:
+        return int(text)
+    except ValueError:
+        raise ValueError(f"{text!r} is not an integer") from None
+
+
+def _constant(text: str) -> dict:
+    """The adaptive threshold's constant, in grey levels: finite, within +/-255."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise ValueError(f"{text!r} is not a number") from None
+    if not (math.isfinite(value) and -255 <= value <= 255):
+        raise ValueError(f"{text}: allowed range is -255..255 grey levels")
+    return {"adaptive_thresh_constant": value}
+
+
+def _margin(text: str) -> dict:
+    value = _integer(text)
+    if not 0 <= value <= MAX_MARGIN_PX:
+        raise ValueError(f"{value}: allowed range is 0..{MAX_MARGIN_PX} px")
+    return {"margin_px": value}
 
 
 def _on_off(text: str) -> bool:
@@ -117,10 +156,10 @@ CHOICES = {
     "refine": ("detector", lambda v: {"corner_refinement": v}),
     "aruco3": ("detector", lambda v: {"use_aruco3_detection": _on_off(v)}),
     "window": ("detector", _window),
-    "constant": ("detector", lambda v: {"adaptive_thresh_constant": float(v)}),
-    "cell": ("detector", lambda v: {"cell_px": int(v)}),
+    "constant": ("detector", _constant),
+    "cell": ("detector", lambda v: {"cell_px": _integer(v)}),
     "search": ("search", lambda v: {"mode": v}),
-    "margin": ("search", lambda v: {"margin_px": int(v)}),
+    "margin": ("search", _margin),
     "pose": ("pipeline", lambda v: {"pose_method": v}),
     "aggregation": ("pipeline", lambda v: {"aggregation": v}),
     "threshold": ("pipeline", lambda v: {"threshold": v}),

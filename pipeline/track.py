@@ -1,23 +1,24 @@
 """Per-frame marker detection and pose over a video: the table the branch estimation reads.
 
 One row per frame and detected marker of the array (ids not on the array are dropped and
-counted): ``frame``, ``marker_id``, ``whisker``, ``c{0..3}_{x,y}_px`` (ArUco order),
-``R_CM_{ij}``, ``t_CM_{x,y,z}_mm`` (T_cam_marker), ``reprojection_err_px``,
-``ambiguity_ratio``. The columns match the labels (bench.dataset.labels): detections and truth
-join on (frame, marker_id).
+counted); the columns are :data:`scenes.tables.TRACK`: corners, the pose T_cam_marker and its
+quality. They match the labels' (bench.dataset.labels): detections and truth join on
+:data:`scenes.tables.JOIN_KEY`.
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterable
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 import pandas as pd
 
 from pipeline.detect import DetectorConfig, detect_markers
-from pipeline.pose import estimate_pose
+from pipeline.pose import PoseEstimate, estimate_pose
 from scenes.camera import FisheyeCamera
+from scenes.tables import TRACK, corner_values, ordered, pose_values, rotations_of, translations_of
 
 
 @dataclass(frozen=True)
@@ -73,7 +74,7 @@ def track(
 ) -> TrackResult:
     """Detect the array's markers and estimate their poses in every frame."""
     whisker_of = {m: i for i, m in enumerate(markers.marker_ids)}
-    rows: list[dict] = []
+    rows: list[_Row] = []
     foreign = failures = n_frames = 0
     last: dict[int, np.ndarray] = {}  # marker id -> corners in the previous frame
     since_full = 0
@@ -105,7 +106,7 @@ def track(
                 failures += 1
                 continue
             seen[det.marker_id] = det.corners_px
-            rows.append(_row(f, det.marker_id, whisker_of[det.marker_id], det.corners_px, pose))
+            rows.append(_Row(f, det.marker_id, whisker_of[det.marker_id], det.corners_px, pose))
         if roi and set(last) - set(seen):
             since_full = search.reacquire_every  # a tracked marker was lost: search it all next
         last = seen
@@ -119,42 +120,38 @@ def _box(corners: np.ndarray, shape: tuple[int, ...], margin: int) -> tuple[int,
     return (max(lo[0], 0), max(lo[1], 0), min(hi[0], shape[1]), min(hi[1], shape[0]))
 
 
-def _row(frame: int, marker_id: int, whisker: int, corners: np.ndarray, pose) -> dict:
-    row = {"frame": frame, "marker_id": marker_id, "whisker": whisker}
-    for k in range(4):
-        row[f"c{k}_x_px"], row[f"c{k}_y_px"] = corners[k]
-    T = pose.T_cam_marker
-    for i in range(3):
-        for j in range(3):
-            row[f"R_CM_{i}{j}"] = T[i, j]
-    for i, axis in enumerate("xyz"):
-        row[f"t_CM_{axis}_mm"] = T[i, 3]
-    row["reprojection_err_px"] = pose.reprojection_err_px
-    row["ambiguity_ratio"] = pose.ambiguity_ratio
-    return row
+class _Row(NamedTuple):
+    frame: int
+    marker_id: int
+    whisker: int
+    corners_px: np.ndarray  # (4, 2)
+    pose: PoseEstimate
 
 
-COLUMNS = (
-    ["frame", "marker_id", "whisker"]
-    + [f"c{k}_{a}_px" for k in range(4) for a in "xy"]
-    + [f"R_CM_{i}{j}" for i in range(3) for j in range(3)]
-    + [f"t_CM_{a}_mm" for a in "xyz"]
-    + ["reprojection_err_px", "ambiguity_ratio"]
-)
+def _table(rows: list[_Row]) -> pd.DataFrame:
+    """The rows as a :data:`scenes.tables.TRACK` table (its dtypes even when empty)."""
+    n = len(rows)
+    values = {
+        "frame": [r.frame for r in rows],
+        "marker_id": [r.marker_id for r in rows],
+        "whisker": [r.whisker for r in rows],
+        **corner_values(np.array([r.corners_px for r in rows]).reshape(n, 4, 2)),
+        **pose_values(np.array([r.pose.T_cam_marker for r in rows]).reshape(n, 4, 4)),
+        "reprojection_err_px": [r.pose.reprojection_err_px for r in rows],
+        "ambiguity_ratio": [r.pose.ambiguity_ratio for r in rows],
+    }
+    return pd.DataFrame(ordered(TRACK, values))
 
 
-def _table(rows: list[dict]) -> pd.DataFrame:
-    return pd.DataFrame(rows, columns=COLUMNS)
-
-
-def pose_arrays(table: pd.DataFrame, n_frames: int, n_whiskers: int):
-    """(R_CM (F, n, 3, 3), t_CM (F, n, 3)) from a detections or labels table; NaN where unseen."""
-    R = np.full((n_frames, n_whiskers, 3, 3), np.nan)
-    t = np.full((n_frames, n_whiskers, 3), np.nan)
+def pose_arrays(
+    table: pd.DataFrame, n_frames: int, n_whiskers: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """(R_cam_marker (F, n, 3, 3), t_cam_marker (F, n, 3) mm) from a detections or labels table;
+    NaN where unseen."""
+    R_cam_marker = np.full((n_frames, n_whiskers, 3, 3), np.nan)
+    t_cam_marker = np.full((n_frames, n_whiskers, 3), np.nan)
     f = table["frame"].to_numpy()
     w = table["whisker"].to_numpy()
-    R[f, w] = (
-        table[[f"R_CM_{i}{j}" for i in range(3) for j in range(3)]].to_numpy().reshape(-1, 3, 3)
-    )
-    t[f, w] = table[[f"t_CM_{a}_mm" for a in "xyz"]].to_numpy()
-    return R, t
+    R_cam_marker[f, w] = rotations_of(table)
+    t_cam_marker[f, w] = translations_of(table)
+    return R_cam_marker, t_cam_marker

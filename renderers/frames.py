@@ -33,11 +33,16 @@ band and full frames), so there is one path. The region starts and ends on the t
 (``block_px``: the MJPEG macroblock), so a band encodes exactly as the same rows of a full frame.
 Needs a JIT variant (``llvm_ad_rgb`` or ``cuda_ad_rgb``): millions of rays per frame are out of
 reach of ``scalar_rgb``.
+
+:class:`FrameRecorder` then records each frame through the camera twin, as the dataset's
+videos hold them. The scenes are assembled in :mod:`renderers.array_scene`, the rays planned in
+:mod:`renderers.frame_rays`.
 """
 
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -46,169 +51,19 @@ import mitsuba as mi
 import numpy as np
 import trimesh
 
-from renderers.fisheye import jitter_in_cone
-from renderers.mitsuba_scene import CanopyScene, diffuse_bsdf, mesh_to_mitsuba
+from renderers.array_scene import ArrayScene, vegetation_scene
+from renderers.camera_twin import optical_image, sensor_images
+from renderers.frame_rays import RayPlan, ray_plan
+from renderers.frame_sampling import FrameSampling, marker_region
+from renderers.mitsuba_scene import CanopyScene
 from renderers.sky_irradiance import irradiance_table
 from renderers.window import Window
-from scenes.array import (
-    ArraySpec,
-    T_cam_marker,
-    T_cam_whisker,
-    deflection_rotation,
-    frame_plate_mesh,
-    marker_meshes,
-    rod_mesh,
-)
+from scenes.array import ArraySpec
 from scenes.camera import FisheyeCamera
-from scenes.conventions import marker_corners_marker
 from scenes.lighting import Lighting
-from scenes.marker import marker_albedo
-from scenes.validation import FieldError
+from scenes.profile import CameraProfile
 
-ROD_ALBEDO = 0.55  # translucent white polyester, seen as a light grey
-CARRIER_ALBEDO = 0.8
-PLATE_ALBEDO = 0.12  # the dark printed arc behind the markers
 SHADOW_EPS_MM = 0.02  # shadow rays start this far off the surface (float32 at ~300 mm: 3e-5)
-
-
-@dataclass(frozen=True)
-class FrameSampling:
-    """How many samples where, and over how much time."""
-
-    marker_spp: int = 4
-    background_spp: int = 1
-    subframes: int = 4
-    full_frame: bool = False
-    margin_px: int = 16  # > half the detector's largest threshold window (23 px)
-
-    def __post_init__(self) -> None:
-        for name in ("marker_spp", "background_spp", "subframes"):
-            if not (isinstance(getattr(self, name), int) and getattr(self, name) >= 1):
-                raise FieldError(name, f"{getattr(self, name)!r}: must be an integer >= 1")
-        if self.margin_px < 0:
-            raise FieldError("margin_px", f"{self.margin_px}: must be >= 0")
-
-
-def marker_region(
-    camera: FisheyeCamera,
-    spec: ArraySpec,
-    margin_px: int,
-    angles_rad: np.ndarray | None = None,
-    block_px: int = 1,
-) -> tuple[Window, Window]:
-    """(band, zone): the full-width rows and the box that every marker pixel lies in.
-
-    With ``angles_rad`` (..., n, 2), the deflections a sample will show, the box holds the
-    markers' carriers at all of them; without, any deflection at all (a marker corner stays
-    within ``marker_offset_mm + carrier half-diagonal`` of its coupling: the projections of those
-    spheres, sampled densely). ``margin_px`` adds room for the detector's threshold windows.
-    Both boxes are then grown to whole ``block_px`` blocks of the full frame (clipped to it).
-    """
-    if angles_rad is None:
-        half_diag = math.sqrt(2) * spec.marker_spec(spec.marker_ids[0]).carrier_half_mm
-        radius = spec.marker_offset_mm + half_diag + 1.0
-        polar = np.linspace(0, math.pi, 25)
-        azimuth = np.linspace(0, 2 * math.pi, 48, endpoint=False)
-        p, a = np.meshgrid(polar, azimuth)
-        sphere = radius * np.stack(
-            [np.sin(p) * np.cos(a), np.sin(p) * np.sin(a), np.cos(p)], axis=-1
-        ).reshape(-1, 3)
-        centres = T_cam_whisker(spec)[:, :3, 3]
-        points = (centres[:, None, :] + sphere[None]).reshape(-1, 3)
-    else:
-        carrier_mm = 2 * spec.marker_spec(spec.marker_ids[0]).carrier_half_mm
-        corners = marker_corners_marker(carrier_mm)
-        T = T_cam_marker(spec, np.asarray(angles_rad, dtype=float).reshape(-1, spec.n_whiskers, 2))
-        points = np.einsum("...ij,kj->...ki", T[..., :3, :3], corners) + T[..., None, :3, 3]
-        points = points.reshape(-1, 3)
-    px = camera.project(points)
-    if np.isnan(px).any():
-        raise ValueError("a marker can leave the image circle: the array does not fit this camera")
-    lo = np.floor(px.min(axis=0)).astype(int) - margin_px
-    hi = np.ceil(px.max(axis=0)).astype(int) + margin_px
-    lo = np.maximum(lo, 0)
-    hi = np.minimum(hi, [camera.width_px - 1, camera.height_px - 1])
-    band = Window(0, int(lo[1]), camera.width_px, int(hi[1] - lo[1] + 1))
-    zone = Window(int(lo[0]), int(lo[1]), int(hi[0] - lo[0] + 1), band.height)
-    return band.aligned(block_px, camera), zone.aligned(block_px, camera)
-
-
-# -- the array as Mitsuba meshes -------------------------------------------------------------
-
-
-class ArrayScene:
-    """Markers (one atlas-textured mesh), carriers with holders, rods and the arc plate.
-
-    Re-posing rewrites three small vertex buffers; the loaded scene and its kernels stay.
-    """
-
-    def __init__(self, spec: ArraySpec) -> None:
-        self.spec = spec
-        n = spec.n_whiskers
-        prints, carriers = zip(*(marker_meshes(spec, i) for i in spec.marker_ids), strict=True)
-        self._print_local = np.stack([np.asarray(m.vertices) for m in prints])
-        self._carrier_local = np.stack([np.asarray(m.vertices) for m in carriers])
-        self._rod_local = np.asarray(rod_mesh(spec).vertices)
-        self._T_cam_whisker = T_cam_whisker(spec)
-        atlas = np.concatenate([marker_albedo(spec.marker_spec(i)) for i in spec.marker_ids], 1)
-        uv = np.asarray(prints[0].visual.uv, dtype=float)
-        print_all = _stack_meshes(prints)
-        print_all.visual = trimesh.visual.TextureVisuals(
-            uv=np.concatenate([(uv + [i, 0.0]) / [n, 1.0] for i in range(n)])
-        )
-        self.scene = mi.load_dict(
-            {
-                "type": "scene",
-                "prints": mesh_to_mitsuba("prints", print_all, diffuse_bsdf(atlas)),
-                "carriers": mesh_to_mitsuba(
-                    "carriers", _stack_meshes(carriers), diffuse_bsdf(CARRIER_ALBEDO)
-                ),
-                "rods": mesh_to_mitsuba(
-                    "rods", _stack_meshes([rod_mesh(spec)] * n), diffuse_bsdf(ROD_ALBEDO)
-                ),
-                "plate": mesh_to_mitsuba(
-                    "plate", frame_plate_mesh(spec), diffuse_bsdf(PLATE_ALBEDO)
-                ),
-            },
-            optimize=False,
-        )
-        self._params = mi.traverse(self.scene)
-
-    def set_angles(self, angles_rad: np.ndarray) -> None:
-        """Pose every whisker for deflection angles (n, 2) (scenes.array convention)."""
-        markers = T_cam_marker(self.spec, angles_rad)
-        rods = self._T_cam_whisker.copy()  # rods turn about their couplings, which stay put
-        rods[:, :3, :3] = rods[:, :3, :3] @ deflection_rotation(angles_rad)
-        rod_local = np.broadcast_to(self._rod_local, (len(rods),) + self._rod_local.shape)
-        for key, T, local in (
-            ("prints", markers, self._print_local),
-            ("carriers", markers, self._carrier_local),
-            ("rods", rods, rod_local),
-        ):
-            posed = np.einsum("nij,nvj->nvi", T[:, :3, :3], local) + T[:, None, :3, 3]
-            key = f"{key}.vertex_positions"
-            self._params[key] = type(self._params[key])(posed.astype(np.float32).ravel())
-        self._params.update()
-
-
-def _stack_meshes(meshes: Sequence[trimesh.Trimesh]) -> trimesh.Trimesh:
-    """Concatenate meshes keeping vertex order (trimesh.util.concatenate may drop the uv)."""
-    vertices, faces, base = [], [], 0
-    for m in meshes:
-        vertices.append(np.asarray(m.vertices))
-        faces.append(np.asarray(m.faces) + base)
-        base += len(m.vertices)
-    return trimesh.Trimesh(np.concatenate(vertices), np.concatenate(faces), process=False)
-
-
-def vegetation_scene(parts: Sequence[tuple[str, trimesh.Trimesh, tuple[float, float, float]]]):
-    """The vegetation (name, mesh in the vegetation frame, RGB albedo) as one static scene."""
-    shapes = {
-        name: mesh_to_mitsuba(name, mesh, diffuse_bsdf(tuple(albedo)))
-        for name, mesh, albedo in parts
-        if len(mesh.faces)
-    }
-    return mi.load_dict({"type": "scene", **shapes}, optimize=False)
 
 
 # -- the fixed set of rays -------------------------------------------------------------------
@@ -222,70 +77,6 @@ class _Batch:
     pixel: mi.UInt32
     sky_escape: mi.Color3f  # radiance of the sky seen by rays that hit nothing
     to_sun: mi.Vector3f | None  # per ray, jittered over the solar disk (canopy shadows)
-
-
-@dataclass
-class _Plan:
-    """The fixed samples of one time sample, NumPy side."""
-
-    dirs: np.ndarray  # (m, 3) float32 camera-frame directions
-    pixel: np.ndarray  # (m,) uint32 flat index into the region
-    to_sun: np.ndarray | None  # (m, 3) float32 jittered sun directions, or None
-
-
-def _ray_plan(
-    camera: FisheyeCamera,
-    region: Window,
-    zone: Window,
-    sampling: FrameSampling,
-    sun_cone: tuple[np.ndarray, float] | None,
-    seed: int,
-) -> tuple[list[_Plan], np.ndarray]:
-    """The samples of each time sample, and the number of samples per region pixel (H, W).
-
-    Zone samples come from their own random stream and are drawn first, so they are the same
-    whatever the region (band or full frame). Sample j of pixel (x, y) goes to time sample
-    (j + x + y) mod subframes: every time sample covers the image evenly.
-    """
-    streams = np.random.SeedSequence(seed).spawn(2)
-    parts = []
-    for window, spp, stream in (
-        (zone, sampling.marker_spp, streams[0]),
-        (region, sampling.background_spp, streams[1]),
-    ):
-        rng = np.random.default_rng(stream)
-        pos = window.sample_positions(spp, rng)  # (h, w, spp, 2)
-        xy = np.floor(pos + 0.5).astype(np.int64).reshape(-1, 2)
-        slot = np.tile(np.arange(spp), window.width * window.height)
-        keep = np.ones(len(xy), bool)
-        if window is region:  # background: only pixels outside the zone
-            keep = ~(
-                (xy[:, 0] >= zone.x0)
-                & (xy[:, 0] < zone.x0 + zone.width)
-                & (xy[:, 1] >= zone.y0)
-                & (xy[:, 1] < zone.y0 + zone.height)
-            )
-        sun = None
-        if sun_cone is not None:
-            sun = jitter_in_cone(*sun_cone, (len(xy),), rng)[keep]
-        parts.append((pos.reshape(-1, 2)[keep], xy[keep], slot[keep], sun))
-    pos, xy, slot = (np.concatenate([p[i] for p in parts]) for i in range(3))
-    dirs, valid = camera.unproject(pos)
-    pixel = (xy[:, 1] - region.y0) * region.width + (xy[:, 0] - region.x0)
-    when = (slot + xy[:, 0] + xy[:, 1]) % sampling.subframes
-    sun = np.concatenate([p[3] for p in parts]) if sun_cone is not None else None
-    plans = []
-    for k in range(sampling.subframes):
-        pick = valid & (when == k)
-        plans.append(
-            _Plan(
-                dirs[pick].astype(np.float32),
-                pixel[pick].astype(np.uint32),
-                None if sun is None else sun[pick].astype(np.float32),
-            )
-        )
-    count = np.bincount(pixel[valid], minlength=region.height * region.width)
-    return plans, count.reshape(region.shape)
 
 
 # -- rendering -------------------------------------------------------------------------------
@@ -323,7 +114,7 @@ class FrameRenderer:
         cone = None
         if self.canopy is not None:
             cone = (np.asarray(sun.to_sun_cam), math.radians(sun.angular_radius_deg))
-        plans, self._count = _ray_plan(camera, self.region, self.zone, sampling, cone, seed)
+        plans, self._count = ray_plan(camera, self.region, self.zone, sampling, cone, seed)
         self.inside = self._count > 0
         self._batches = [self._batch(plan) for plan in plans]
         self._setup_shading()
@@ -332,7 +123,7 @@ class FrameRenderer:
     def rays_per_frame(self) -> int:
         return int(self._count.sum())
 
-    def _batch(self, plan: _Plan) -> _Batch:
+    def _batch(self, plan: RayPlan) -> _Batch:
         sky = self.lighting.sky
         escape = sky.radiance(plan.dirs.astype(float))[:, None] * np.asarray(sky.color)
         return _Batch(
@@ -440,3 +231,77 @@ class FrameRenderer:
                 mi.Ray3f(origin + shift, batch.to_sun), active & ~blocked
             )
         return dr.select(blocked, 0.0, 1.0)
+
+
+class FrameRecorder:
+    """A sample's frames rendered and recorded through the camera twin: full-size 8-bit grey,
+    one at a time, with the seconds spent rendering, in the optics and in the sensor."""
+
+    def __init__(
+        self,
+        profile: CameraProfile,
+        spec: ArraySpec,
+        vegetation_parts: Sequence[tuple[str, trimesh.Trimesh, tuple[float, float, float]]],
+        lighting: Lighting,
+        sampling: FrameSampling,
+        render_seed: int,
+        noise_seed: int,
+        exposure: float,
+        angles_rad: np.ndarray,
+        offsets_mm: np.ndarray,
+    ) -> None:
+        """``angles_rad`` (F, K + 1, n, 2): each frame's deflections at its K = ``subframes``
+        time samples, then at its timestamp (the band is fitted to them all); ``offsets_mm``
+        (F, K, 2): the array's (x, z) offset in the vegetation frame at each time sample;
+        ``exposure``: linear radiance to sensor full scale, before the lighting's own factor."""
+        self.profile = profile
+        self.renderer = FrameRenderer(
+            profile.lens,
+            spec,
+            vegetation_parts,
+            lighting,
+            sampling,
+            render_seed,
+            angles_rad=angles_rad,
+            block_px=profile.stream.block_px,
+        )
+        self.angles_rad, self.offsets_mm = angles_rad, offsets_mm
+        self.exposure = exposure * lighting.exposure
+        self.rng_band, self.rng_rest = (
+            np.random.default_rng(s) for s in np.random.SeedSequence(noise_seed).spawn(2)
+        )
+        self.render_s = self.optics_s = self.sensor_s = 0.0
+
+    def radiance(self, f: int) -> np.ndarray:
+        """Clean linear RGB radiance of frame ``f`` over the renderer's region."""
+        k = self.renderer.sampling.subframes
+        return self.renderer.render(self.angles_rad[f, :k], self.offsets_mm[f])
+
+    def _record(self, irradiance: np.ndarray, window: Window, rng: np.random.Generator):
+        origin = (window.x0, window.y0)
+        return sensor_images(irradiance, self.profile, rng, 1, origin, self.exposure)[0]
+
+    def frame(self, f: int) -> np.ndarray:
+        """The camera's 8-bit grey frame ``f`` (H, W): black outside the rendered region.
+
+        The optics run once over the region; the band's sensor noise comes from its own
+        stream, so a band frame and a full frame of the same sample hold identical pixels
+        wherever their optical images agree (the band starts on the stream's block grid).
+        """
+        t0 = time.perf_counter()
+        radiance = self.radiance(f)
+        t1 = time.perf_counter()
+        lens, region, band = self.profile.lens, self.renderer.region, self.renderer.band
+        irradiance = optical_image(radiance, self.profile, (region.x0, region.y0))
+        t2 = time.perf_counter()
+        image = np.zeros((lens.height_px, lens.width_px), np.uint8)
+        if region != band:
+            image[region.y0 : region.y0 + region.height, region.x0 : region.x0 + region.width] = (
+                self._record(irradiance, region, self.rng_rest)
+            )
+        rows = slice(band.y0 - region.y0, band.y0 - region.y0 + band.height)
+        image[band.y0 : band.y0 + band.height] = self._record(irradiance[rows], band, self.rng_band)
+        self.render_s += t1 - t0
+        self.optics_s += t2 - t1
+        self.sensor_s += time.perf_counter() - t2
+        return image

@@ -15,6 +15,7 @@ import trimesh
 from scenes.conventions import transform_points
 from scenes.lighting import Lighting, Sky, canopy_mesh
 from scenes.marker import MarkerSpec, carrier_mesh, marker_albedo, print_mesh
+from scenes.materials import CANOPY_ALBEDO, CARRIER_ALBEDO
 
 SKY_MAP_SIZE = (64, 128)  # (rows, cols) of the lat-long sky: the sky is smooth
 
@@ -103,7 +104,7 @@ class MarkerScene:
                 "type": "scene",
                 "sky": {"type": "envmap", "bitmap": mi.Bitmap(sky_bitmap(lighting.sky))},
                 "print": mesh_to_mitsuba("print", self._print, diffuse_bsdf(marker_albedo(marker))),
-                "carrier": mesh_to_mitsuba("carrier", self._carrier, diffuse_bsdf(0.8)),
+                "carrier": mesh_to_mitsuba("carrier", self._carrier, diffuse_bsdf(CARRIER_ALBEDO)),
             },
             optimize=False,
         )
@@ -129,6 +130,9 @@ class CanopyScene:
             raise ValueError(f"lighting {lighting.name!r} has no sun or no canopy")
         mesh = canopy_mesh(lighting.sun, lighting.canopy)
         self.scene = mi.load_dict(
-            {"type": "scene", "leaves": mesh_to_mitsuba("leaves", mesh, diffuse_bsdf(0.3))},
+            {
+                "type": "scene",
+                "leaves": mesh_to_mitsuba("leaves", mesh, diffuse_bsdf(CANOPY_ALBEDO)),
+            },
             optimize=False,
         )

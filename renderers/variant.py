@@ -108,6 +108,19 @@ def select_variant(requested: str | None = None) -> str:
     raise RuntimeError("no Mitsuba variant could be set: " + "; ".join(errors))
 
 
+def init_worker(variant: str | None, threads: int | None = None) -> str:
+    """Set the Mitsuba variant (and Dr.Jit's thread count) in this process; return the variant.
+
+    Once per process that renders: each pool worker runs it before its first task.
+    """
+    chosen = select_variant(variant)
+    if threads:
+        import drjit as dr
+
+        dr.set_thread_count(threads)
+    return chosen
+
+
 def _main() -> int:
     llvm = find_libllvm()
     if "--has-llvm" in sys.argv:

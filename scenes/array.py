@@ -162,7 +162,8 @@ def T_cam_marker(spec: ArraySpec, angles_rad: np.ndarray) -> np.ndarray:
 
 
 def T_marker0_marker(spec: ArraySpec, angles_rad: np.ndarray) -> np.ndarray:
-    """(..., 4, 4) deflected marker pose in its own no-contact frame (the pipeline's T_M0M)."""
+    """(..., 4, 4) deflected marker pose in its own no-contact frame (the seed paper's T_M0M;
+    notation in scenes.conventions)."""
     rest = T_whisker_marker(spec, np.zeros(2))
     rest_inv = make_T(rest[:3, :3].T, -rest[:3, :3].T @ rest[:3, 3])
     return rest_inv @ T_whisker_marker(spec, angles_rad)

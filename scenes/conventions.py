@@ -17,9 +17,20 @@ Marker frame (``marker``)
     face (towards a camera that reads it). Corners in ArUco's order: top-left, top-right,
     bottom-right, bottom-left, i.e. (-L/2, +L/2), (+L/2, +L/2), (+L/2, -L/2), (-L/2, -L/2).
 
+Whisker frame (``whisker``)
+    One per whisker, at rest: origin at its coupling on the array, +z towards the camera, +y
+    image-up (:func:`scenes.array.T_cam_whisker`).
+
+No-contact marker frame (``marker0``)
+    The marker frame where the whisker rests (in the pipeline: the mean of its first frames).
+
 Transforms
     ``T_a_b`` is a 4x4 homogeneous matrix mapping points in frame b into frame a:
-    ``p_a = T_a_b @ p_b``; so ``T_a_c = T_a_b @ T_b_c``.
+    ``p_a = T_a_b @ p_b``; so ``T_a_c = T_a_b @ T_b_c``. Its rotation and translation are
+    ``R_a_b`` and ``t_a_b``. E.g. ``T_cam_marker`` (a marker's pose in the camera frame) and
+    ``T_marker0_marker`` (the marker's displacement from its no-contact pose; the seed paper's
+    T_M0M, ``inv(T_cam_marker0) @ T_cam_marker``). The same words name the columns of the
+    per-marker tables (:mod:`scenes.tables`): ``R_cam_marker_{ij}``, ``t_cam_marker_{x,y,z}_mm``.
 """
 
 from __future__ import annotations

@@ -15,15 +15,15 @@ import cv2
 import numpy as np
 import trimesh
 
+from scenes.conventions import transform_points
+from scenes.materials import BLACK_ALBEDO, WHITE_ALBEDO
+
 QUIET_ZONE_MODULES = 1
 CARRIER_MARGIN_MODULES = 1
 CARRIER_THICKNESS_MM = 1.0
 PRINT_GAP_MM = (
     0.01  # the carrier's front face sits this far behind the print, so they never coincide
 )
-#: Reflectance (albedo) of the print: matte paper and toner.
-WHITE_ALBEDO = 0.8
-BLACK_ALBEDO = 0.04
 
 
 def dictionary_names() -> list[str]:
@@ -116,3 +116,17 @@ def carrier_mesh(spec: MarkerSpec) -> trimesh.Trimesh:
     box = trimesh.creation.box(extents=(2 * h, 2 * h, CARRIER_THICKNESS_MM))
     box.apply_translation((0.0, 0.0, -0.5 * CARRIER_THICKNESS_MM - PRINT_GAP_MM))
     return box
+
+
+def carrier_outline(T_cam_marker: np.ndarray, spec: MarkerSpec, steps: int = 9) -> np.ndarray:
+    """Points along every segment between two carrier vertices, camera frame: (M, 3) mm.
+
+    A crop frames their projections. The vertices alone are not enough: their projections are
+    NaN beyond theta_max, and from alpha 90 deg the carrier's far vertices can be past 95 deg
+    while part of the marker is not, so a crop framing the vertices would cut the marker.
+    Points along the edges keep the visible part of the carrier framed up to the image circle.
+    """
+    v = transform_points(T_cam_marker, carrier_mesh(spec).vertices)
+    i, j = np.triu_indices(len(v), k=1)
+    t = np.linspace(0.0, 1.0, steps)[:, None, None]
+    return (v[i][None] + t * (v[j] - v[i])[None]).reshape(-1, 3)

@@ -50,13 +50,19 @@ angle, plus its own series bending).
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
 
 from scenes.array import ArraySpec
+from scenes.mechanics_model import (
+    MechanicsModel,
+    build_model,
+    check_finite,
+    check_offsets,
+    check_pivots_clear,
+)
 from scenes.obstacles import CompliantContact, RigidCylinder
 
 _TOL_RAD = 1e-10  # Newton stops when every whisker's step is below this (quadratic: error ~1e-20)
@@ -73,40 +79,6 @@ class MechanicsResult:
     angles_rad: np.ndarray  # (T, n, 2) float64: (theta_h, theta_v), scenes.array's convention
     contact: np.ndarray  # (T, n) bool: the whisker touches any obstacle
     branch_contact: np.ndarray  # (T, n) bool: it touches a RigidCylinder
-
-
-@dataclass(frozen=True)
-class _Foliage:
-    """The compliant contacts as (m,) arrays."""
-
-    x: np.ndarray
-    z: np.ndarray
-    stiffness: np.ndarray
-    limit: np.ndarray
-    give_way: np.ndarray
-    vertical: np.ndarray
-
-
-@dataclass(frozen=True)
-class _Branches:
-    """The rigid cylinders as (B,) arrays; ``r`` already includes the rod's radius."""
-
-    x: np.ndarray
-    z: np.ndarray
-    r: np.ndarray
-
-
-@dataclass(frozen=True)
-class _Model:
-    """Everything constant during a simulation."""
-
-    psi: np.ndarray  # (n,) rest headings
-    base: np.ndarray  # (n, 2) couplings at zero offset
-    length: float
-    k: float
-    inv_3ei: float  # 1 / (3 EI), 0 for a rigid rod
-    foliage: _Foliage
-    branches: _Branches
 
 
 @dataclass
@@ -128,77 +100,6 @@ class _Loads:
     delta: np.ndarray  # the rod's push past the rest point (> 0 when pushing)
     k_eff: np.ndarray  # strip stiffness in series with the rod's bending
     force: np.ndarray  # contact force magnitude (0 unless engaged and pushed)
-
-
-# -- validation ------------------------------------------------------------------------------
-
-
-def _finite(name: str, value: float, minimum: float | None = None, strict: bool = True) -> None:
-    if not math.isfinite(value):
-        raise ValueError(f"{name}: must be finite, got {value}")
-    if minimum is not None and (value <= minimum if strict else value < minimum):
-        raise ValueError(f"{name}: must be {'>' if strict else '>='} {minimum}, got {value}")
-
-
-def _check_offsets(offsets_mm: np.ndarray) -> np.ndarray:
-    offsets = np.asarray(offsets_mm, dtype=float)
-    if offsets.ndim != 2 or offsets.shape[1] != 2 or offsets.shape[0] < 1:
-        raise ValueError(f"offsets_mm: expected shape (T >= 1, 2), got {offsets.shape}")
-    if not np.all(np.isfinite(offsets)):
-        raise ValueError("offsets_mm: must be finite (found NaN or inf)")
-    return offsets
-
-
-def _foliage_arrays(foliage: Sequence[CompliantContact]) -> _Foliage:
-    for j, f in enumerate(foliage):
-        if not isinstance(f, CompliantContact):
-            raise ValueError(f"foliage[{j}]: expected CompliantContact, got {type(f).__name__}")
-        _finite(f"foliage[{j}].x_mm", f.x_mm)
-        _finite(f"foliage[{j}].z_mm", f.z_mm)
-        _finite(f"foliage[{j}].stiffness_N_per_mm", f.stiffness_N_per_mm, 0.0)
-        _finite(f"foliage[{j}].force_limit_N", f.force_limit_N, 0.0, strict=False)
-        _finite(f"foliage[{j}].give_way_mm", f.give_way_mm, 0.0)
-        _finite(f"foliage[{j}].vertical_ratio", f.vertical_ratio)
-    fields = ("x_mm", "z_mm", "stiffness_N_per_mm", "force_limit_N", "give_way_mm")
-    cols = [np.array([getattr(f, k) for f in foliage], dtype=float) for k in fields]
-    vertical = np.array([f.vertical_ratio for f in foliage], dtype=float)
-    return _Foliage(*cols, vertical=vertical)
-
-
-def _branch_arrays(branches: Sequence[RigidCylinder], rod_radius: float) -> _Branches:
-    for b, c in enumerate(branches):
-        if not isinstance(c, RigidCylinder):
-            raise ValueError(f"branches[{b}]: expected RigidCylinder, got {type(c).__name__}")
-        _finite(f"branches[{b}].x_mm", c.x_mm)
-        _finite(f"branches[{b}].z_mm", c.z_mm)
-        _finite(f"branches[{b}].radius_mm", c.radius_mm, 0.0)
-    x = np.array([c.x_mm for c in branches], dtype=float)
-    z = np.array([c.z_mm for c in branches], dtype=float)
-    r = np.array([c.radius_mm for c in branches], dtype=float) + rod_radius
-    return _Branches(x, z, r)
-
-
-def _check_pivots_clear(model: _Model, offsets: np.ndarray) -> None:
-    """ValueError if any coupling's straight path between offsets enters a branch's disk."""
-    br = model.branches
-    if br.x.size == 0:
-        return
-    # Branch centres relative to each coupling at zero offset: (n, B, 2); the coupling moves
-    # along the offset polyline, so measure each centre's distance to that polyline.
-    rel = np.stack([br.x, br.z], axis=-1)[None] - model.base[:, None]
-    points = offsets if len(offsets) > 1 else np.repeat(offsets, 2, axis=0)
-    to_c = rel[None] - points[:-1, None, None]  # (S, n, B, 2)
-    seg = np.diff(points, axis=0)[:, None, None]
-    length2 = np.sum(seg * seg, axis=-1)
-    t = np.clip(np.sum(to_c * seg, axis=-1) / np.where(length2 > 0, length2, 1.0), 0.0, 1.0)
-    dist = np.linalg.norm(to_c - t[..., None] * seg, axis=-1)
-    bad = dist <= br.r
-    if np.any(bad):
-        s, i, b = np.argwhere(bad)[0]
-        raise ValueError(
-            f"branches[{b}]: whisker {i}'s coupling enters the branch (pivot within "
-            f"{br.r[b]:.3f} mm of its axis) between offsets {s} and {min(s + 1, len(offsets) - 1)}"
-        )
 
 
 # -- path ------------------------------------------------------------------------------------
@@ -233,7 +134,7 @@ class _Pairs:
     limit: np.ndarray  # (m',)
 
 
-def _engaged_pairs(model: _Model, rel: _Rel, st: _State) -> _Pairs:
+def _engaged_pairs(model: MechanicsModel, rel: _Rel, st: _State) -> _Pairs:
     cols = np.flatnonzero(st.engaged.any(axis=0))
     side, engaged = st.side[:, cols], st.engaged[:, cols]
     fol = model.foliage
@@ -256,7 +157,7 @@ def _project(rx: np.ndarray, rz: np.ndarray, phi: np.ndarray) -> tuple[np.ndarra
     return rx * sin + rz * cos, rx * cos - rz * sin
 
 
-def _loads(model: _Model, pr: _Pairs, theta: np.ndarray) -> _Loads:
+def _loads(model: MechanicsModel, pr: _Pairs, theta: np.ndarray) -> _Loads:
     """Loads of the engaged contacts with the rods at coupling angles ``theta``."""
     a, c = _project(pr.rx, pr.rz, model.psi + theta)
     delta = pr.back * c
@@ -275,7 +176,12 @@ def _torque(pr: _Pairs, ld: _Loads) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _solve(
-    model: _Model, pr: _Pairs, theta0: np.ndarray, A: np.ndarray, B: np.ndarray, R: np.ndarray
+    model: MechanicsModel,
+    pr: _Pairs,
+    theta0: np.ndarray,
+    A: np.ndarray,
+    B: np.ndarray,
+    R: np.ndarray,
 ) -> np.ndarray:
     """Roots of ``A theta - B torque(theta) = R`` per whisker (safeguarded Newton).
 
@@ -300,7 +206,7 @@ def _solve(
     return theta
 
 
-def _engage(model: _Model, rel: _Rel, theta: np.ndarray, st: _State) -> bool:
+def _engage(model: MechanicsModel, rel: _Rel, theta: np.ndarray, st: _State) -> bool:
     """Engage contacts the rod lines have swept across; refresh the others' sides."""
     a, c = _project(*rel, model.psi + theta)
     free = ~st.engaged
@@ -311,7 +217,7 @@ def _engage(model: _Model, rel: _Rel, theta: np.ndarray, st: _State) -> bool:
 
 
 def _release(
-    model: _Model, rel: _Rel, theta: np.ndarray, st: _State
+    model: MechanicsModel, rel: _Rel, theta: np.ndarray, st: _State
 ) -> tuple[bool, _Pairs, _Loads]:
     """Disengage contacts left behind, given way or off the rod; they keep their current side.
 
@@ -334,7 +240,7 @@ def _release(
 # -- branches --------------------------------------------------------------------------------
 
 
-def _shadows(model: _Model, P: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _shadows(model: MechanicsModel, P: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(gamma, beta, lever), each (n, B): blocked headings gamma +- beta, contact distance."""
     br, L = model.branches, model.length
     dx, dz = br.x - P[:, :1], br.z - P[:, 1:]
@@ -352,7 +258,11 @@ def _wrap(angle: np.ndarray) -> np.ndarray:
 
 
 def _clamp(
-    model: _Model, theta_free: np.ndarray, gamma: np.ndarray, beta: np.ndarray, side: np.ndarray
+    model: MechanicsModel,
+    theta_free: np.ndarray,
+    gamma: np.ndarray,
+    beta: np.ndarray,
+    side: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(geometric angle, held (n,) bool, index of the holding branch): keep rods out of shadows.
 
@@ -380,7 +290,7 @@ def _clamp(
 
 
 def _refresh_branch_sides(
-    model: _Model, theta_geom: np.ndarray, gamma: np.ndarray, beta: np.ndarray, st: _State
+    model: MechanicsModel, theta_geom: np.ndarray, gamma: np.ndarray, beta: np.ndarray, st: _State
 ) -> None:
     """Remember the side of every shadow the rod is (strictly) outside of."""
     u = _wrap(model.psi[:, None] + theta_geom[:, None] - gamma)
@@ -391,7 +301,7 @@ def _refresh_branch_sides(
 
 
 def _equilibrium(
-    model: _Model, P: np.ndarray, rel: _Rel, st: _State
+    model: MechanicsModel, P: np.ndarray, rel: _Rel, st: _State
 ) -> tuple[np.ndarray, np.ndarray]:
     """(coupling angles, held by a branch): spring + foliage equilibrium, then branches."""
     n = model.psi.size
@@ -411,7 +321,9 @@ def _equilibrium(
     return _solve(model, pr, theta_geom, A, B, R), held
 
 
-def _step(model: _Model, P: np.ndarray, st: _State) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _step(
+    model: MechanicsModel, P: np.ndarray, st: _State
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Advance the state to couplings P (n, 2); theta_h is left in ``st.theta``.
 
     Returns (n,) theta_v, contact and branch contact. A step repeats engage / solve / release
@@ -433,23 +345,7 @@ def _step(model: _Model, P: np.ndarray, st: _State) -> tuple[np.ndarray, np.ndar
 # -- public ----------------------------------------------------------------------------------
 
 
-def _model(
-    spec: ArraySpec, branches: Sequence[RigidCylinder], foliage: Sequence[CompliantContact]
-) -> _Model:
-    psi = spec.headings_rad
-    ei = spec.rod_bending_EI_Nmm2
-    return _Model(
-        psi=psi,
-        base=spec.frame_radius_mm * np.stack([np.sin(psi), np.cos(psi)], axis=-1),
-        length=float(spec.whisker_length_mm),
-        k=float(spec.spring_Nmm_per_rad),
-        inv_3ei=0.0 if ei is None else 1.0 / (3.0 * ei),
-        foliage=_foliage_arrays(foliage),
-        branches=_branch_arrays(branches, spec.whisker_diameter_mm / 2),
-    )
-
-
-def _initial_state(model: _Model, P: np.ndarray) -> _State:
+def _initial_state(model: MechanicsModel, P: np.ndarray) -> _State:
     """Rods at rest, nothing engaged, sides taken from the rest configuration."""
     n, m = model.psi.size, model.foliage.x.size
     st = _State(
@@ -479,10 +375,10 @@ def simulate(
     """
     if not isinstance(spec, ArraySpec):
         raise ValueError(f"spec: expected ArraySpec, got {type(spec).__name__}")
-    _finite("max_step_mm", float(max_step_mm), 0.0)
-    offsets = _check_offsets(offsets_mm)
-    model = _model(spec, branches, foliage)
-    _check_pivots_clear(model, offsets)
+    check_finite("max_step_mm", float(max_step_mm), 0.0)
+    offsets = check_offsets(offsets_mm)
+    model = build_model(spec, branches, foliage)
+    check_pivots_clear(model, offsets)
     path, keep = _substeps(offsets, float(max_step_mm))
 
     T, n = len(offsets), model.psi.size

@@ -5,6 +5,9 @@ The command line maps ``field`` to its option and prints ``detail`` in one line.
 
 from __future__ import annotations
 
+#: Largest seed of any config: seeds feed NumPy's SeedSequence and the manifests (32 bits).
+MAX_SEED = 2**32 - 1
+
 
 class FieldError(ValueError):
     """An invalid value of the config field ``field``; ``detail`` says why and what is allowed."""

@@ -84,13 +84,14 @@ def test_tip_and_marker_move_opposite_ways_by_the_lever_ratio() -> None:
     a[:, 0] = theta
     tip = tip_cam(SPEC, a)
     rest_tip = tip_cam(SPEC, np.zeros((13, 2)))
-    t_M0M = T_marker0_marker(SPEC, a)[:, :3, 3]
+    t_marker0_marker = T_marker0_marker(SPEC, a)[:, :3, 3]
     lateral = np.stack(
         [np.cos(SPEC.headings_rad), 0 * SPEC.headings_rad, -np.sin(SPEC.headings_rad)], 1
     )
     tip_lateral = np.einsum("ni,ni->n", tip - rest_tip, lateral)
     np.testing.assert_allclose(tip_lateral, 140 * math.sin(theta), atol=1e-9)
-    np.testing.assert_allclose(t_M0M[:, 0], -8 * math.sin(theta), atol=1e-12)  # marker x = lateral
+    # marker x = lateral
+    np.testing.assert_allclose(t_marker0_marker[:, 0], -8 * math.sin(theta), atol=1e-12)
     np.testing.assert_allclose(np.linalg.norm(outward_cam(SPEC), axis=1), 1.0)
 
 

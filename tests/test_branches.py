@@ -65,7 +65,7 @@ def _add_branch(angles: np.ndarray, left: int) -> np.ndarray:
 
 
 def _poses(angles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(R_CM (F, n, 3, 3), t_CM (F, n, 3)) of the scene's markers for (F, n, 2) angles."""
+    """(R_cam_marker (F, n, 3, 3), t_cam_marker (F, n, 3)) of the markers for (F, n, 2) angles."""
     T = T_cam_marker(SPEC, angles)
     return T[..., :3, :3], T[..., :3, 3]
 
@@ -87,9 +87,9 @@ def fixed_threshold_mm() -> float:
 def test_the_scene_moves_the_marker_opposite_to_the_tip():
     # the physics the refinement relies on: tip pushed left (theta_h < 0) -> marker x > 0
     theta = -0.3
-    t_M0M = T_marker0_marker(SPEC, np.array([theta, 0.0]))[:3, 3]
-    assert t_M0M[0] == pytest.approx(-MARKER_OFFSET_MM * np.sin(theta))
-    assert t_M0M[0] > 0
+    t_marker0_marker = T_marker0_marker(SPEC, np.array([theta, 0.0]))[:3, 3]
+    assert t_marker0_marker[0] == pytest.approx(-MARKER_OFFSET_MM * np.sin(theta))
+    assert t_marker0_marker[0] > 0
 
 
 def test_foliage_threshold_is_the_foliage_maximum(fixed_threshold_mm):
@@ -251,13 +251,15 @@ def test_estimate_needs_frames():
 
 
 def test_deflection_vectors_recover_the_displacement_in_the_marker_frame():
-    T_CM0 = make_T(rot_y(0.7) @ rot_x(-0.3), [10.0, -5.0, 200.0])
+    T_cam_marker0 = make_T(rot_y(0.7) @ rot_x(-0.3), [10.0, -5.0, 200.0])
     displacement = np.array([1.5, -2.0, 0.3])
-    T_CM = T_CM0 @ make_T(rot_x(0.2) @ rot_y(-0.1), displacement)  # moved and turned
-    vec = deflection_vectors(T_CM[None, None, :3, 3], T_CM0[None, :3, :3], T_CM0[None, :3, 3])
+    T_cam_marker_ = T_cam_marker0 @ make_T(rot_x(0.2) @ rot_y(-0.1), displacement)  # moved, turned
+    vec = deflection_vectors(
+        T_cam_marker_[None, None, :3, 3], T_cam_marker0[None, :3, :3], T_cam_marker0[None, :3, 3]
+    )
     assert vec.shape == (1, 1, 3)
     assert vec[0, 0] == pytest.approx(displacement)
-    assert vec[0, 0] == pytest.approx((invert_T(T_CM0) @ T_CM)[:3, 3])
+    assert vec[0, 0] == pytest.approx((invert_T(T_cam_marker0) @ T_cam_marker_)[:3, 3])
     assert deflection_mm(vec)[0, 0] == pytest.approx(2.5)
 
 

@@ -117,6 +117,7 @@ def test_bad_camera_fields_raise(change, field):
         dataclasses.replace(default_camera(), **change)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     "k, shear",
     [

@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 
 import numpy as np
 import pandas as pd
+import pytest
 
 from bench.evaluate.compare import pareto_front
 from pipeline.presets import PRESETS, get_pipeline
@@ -20,6 +22,7 @@ def test_pareto_front_keeps_only_undominated_points():
     assert pareto_front(np.array([1.0, 1.0]), np.array([0.5, 0.5]), True).all()  # ties stay
 
 
+@pytest.mark.slow
 def test_compare_writes_a_report_with_every_variant(rendered_pair, tmp_path):
     from bench.evaluate.compare import run_compare
     from bench.evaluate.sweep_config import QUICK_SWEEP
@@ -49,8 +52,18 @@ def test_compare_writes_a_report_with_every_variant(rendered_pair, tmp_path):
     # bulk per-sample output stays beside the dataset, not in the report
     assert (rendered_pair / "scores" / "fast~window=3-23-10" / "samples.csv").exists()
     assert not list(out.rglob("*.parquet"))
+    # provenance: the sweep config is a file beside the table; the manifest's digests hold
+    from test_provenance import check_manifest
+
+    sweep_config = json.loads((out / "sweep_config.json").read_text())
+    assert sweep_config["config"] == json.loads(json.dumps(sweep.to_json(), default=str))
+    assert [p["name"] for p in sweep_config["pipelines"]] == ["paper", "fast/window=3-23-10"]
+    manifest = check_manifest(out, "compare")
+    assert {"report.md", "sweeps.csv", "sweep_config.json"} <= set(manifest["outputs"])
+    assert str(rendered_pair / "manifest.json") in manifest["inputs"]
 
 
+@pytest.mark.slow
 def test_the_sweeps_use_the_datasets_camera_unless_told(rendered_pair, tmp_path):
     import pytest
 

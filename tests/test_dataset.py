@@ -62,9 +62,10 @@ def dataset(tmp_path_factory, variant):
     return config, out, manifest
 
 
+@pytest.mark.slow
 def test_sample_files_and_manifest(dataset) -> None:
+    from bench.common.manifest import sha256
     from bench.common.video import video_info
-    from bench.dataset.sample import sha256
 
     config, out, manifest = dataset
     sample = config.samples()[0]
@@ -88,6 +89,7 @@ def test_sample_files_and_manifest(dataset) -> None:
     assert sum(stages.values()) == pytest.approx(record["timing_s"]["total_s"])
 
 
+@pytest.mark.slow
 def test_markers_are_detected_where_the_labels_say(dataset) -> None:
     """Median corner error <= 0.3 px on the decoded video, lab lighting, sub-pixel refinement."""
     from bench.common.video import read_video
@@ -116,6 +118,7 @@ def test_markers_are_detected_where_the_labels_say(dataset) -> None:
     assert np.median(np.concatenate(errors)) <= 0.3
 
 
+@pytest.mark.slow
 def test_lead_in_has_no_contact_and_zero_deflection(dataset) -> None:
     config, out, _ = dataset
     labels = pd.read_parquet(out / config.samples()[0].sample_id / "labels.parquet")
@@ -125,6 +128,7 @@ def test_lead_in_has_no_contact_and_zero_deflection(dataset) -> None:
     assert labels["deflection_mm"].max() > 2.0  # the branch does deflect a whisker later
 
 
+@pytest.mark.slow
 def test_rerun_skips_verified_samples_and_redoes_broken_ones(dataset) -> None:
     from bench.dataset.generate import run_dataset
 
@@ -133,7 +137,7 @@ def test_rerun_skips_verified_samples_and_redoes_broken_ones(dataset) -> None:
     assert again["skipped"] == 1 and again["frames_rendered"] == 0
     assert again["files"] == manifest["files"]
     other = DatasetConfig(**{**SMALL, "exposure_ms": 4.0})
-    with pytest.raises(DatasetConfigError, match="other settings"):
+    with pytest.raises(DatasetConfigError, match="another configuration"):
         run_dataset(other, out, progress=False)
 
 
@@ -152,6 +156,7 @@ def test_the_settings_hash_follows_the_camera_profile() -> None:
     assert len(hashes | {base}) == len(cameras) + 1
 
 
+@pytest.mark.slow
 def test_same_seed_same_labels_other_seed_other_foliage() -> None:
     config = DatasetConfig(**SMALL)
     sample = config.samples()[0]
@@ -210,6 +215,7 @@ def test_bad_options_one_line_exit_2_nothing_written(tmp_path, capsys, args, opt
     assert not out.exists()
 
 
+@pytest.mark.slow
 def test_the_command_line_entry_point_exits_2(tmp_path) -> None:
     """The same through ``python -m bench.cli``: the exit code reaches the shell."""
     out = tmp_path / "never"
@@ -224,12 +230,13 @@ def _srgb_decode(codes: np.ndarray) -> np.ndarray:
     return np.where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4)
 
 
+@pytest.mark.slow
 def test_relative_illumination_darkens_the_frame_edges(variant) -> None:
     """The twin sees each pixel's field angle: with a fall-off to 0.4 at 90 degrees, the light
     across the band's row follows the table (the lens' own field angles, interpolated)."""
     if variant.startswith("scalar"):
         pytest.skip("frame rendering needs a JIT variant")
-    from bench.dataset.sample import SampleFrames
+    from bench.dataset.sample import sample_recorder
 
     plain = DatasetConfig(**SMALL)
     falloff = RelativeIllumination((0.0, 90.0), (1.0, 0.4))
@@ -238,8 +245,8 @@ def test_relative_illumination_darkens_the_frame_edges(variant) -> None:
     )
     sample = plain.samples()[0]
     sim = simulate_sample(plain, sample)
-    a = _srgb_decode(SampleFrames(plain, sample, sim).frame(0).astype(float))
-    b = _srgb_decode(SampleFrames(dim, sample, sim).frame(0).astype(float))
+    a = _srgb_decode(sample_recorder(plain, sample, sim).frame(0).astype(float))
+    b = _srgb_decode(sample_recorder(dim, sample, sim).frame(0).astype(float))
     row = 971
     for cols in (slice(1200, 1400), slice(400, 600), slice(2000, 2200)):
         pixels = np.stack(np.meshgrid(np.arange(2592)[cols], [row]), axis=-1)
@@ -249,6 +256,7 @@ def test_relative_illumination_darkens_the_frame_edges(variant) -> None:
     assert expected < 0.7  # the edges do get darker
 
 
+@pytest.mark.slow
 def test_a_colour_twin_with_psf_and_mjpeg_runs_end_to_end(tmp_path, variant) -> None:
     """Bayer, PSF, lateral colour and MJPEG on a short sample: the band sits on the 16 px MCU
     grid, camera.json is the profile, and the markers found are where the labels say (the

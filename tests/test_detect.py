@@ -12,6 +12,7 @@ import pandas as pd
 import pytest
 
 from pipeline.presets import PRESETS
+from scenes.tables import DETECTIONS, corners_of, names
 
 
 @pytest.fixture(scope="module")
@@ -19,6 +20,7 @@ def sample_video(rendered_pair):
     return rendered_pair / "soft-intermediate-100-outdoor-lab"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", list(PRESETS))
 def test_every_preset_runs_and_paper_finds_the_branch(sample_video, tmp_path, name) -> None:
     from bench.evaluate.detect import run_detect
@@ -29,7 +31,8 @@ def test_every_preset_runs_and_paper_finds_the_branch(sample_video, tmp_path, na
     assert record["true_gaps"] == [[8, 9]]
     assert (tmp_path / "branches.png").stat().st_size > 1000
     table = pd.read_parquet(tmp_path / "detections.parquet")
-    assert {"deflection_mm", "contact", "t_CM_x_mm", "c0_x_px"} <= set(table.columns)
+    assert list(table.columns) == names(DETECTIONS)
+    assert [str(table[c.name].dtype) for c in DETECTIONS] == [c.dtype for c in DETECTIONS]
     assert record["frames"] == table["frame"].max() + 1
     if name == "paper":
         gaps = [b["gap"] for b in record["branches"]]
@@ -45,6 +48,7 @@ def _run(*args: str) -> subprocess.CompletedProcess:
     )
 
 
+@pytest.mark.slow
 def test_unreadable_video_and_bad_camera_one_line_exit_2(tmp_path) -> None:
     """An old dataset's bare camera file still loads (the video is what is refused)."""
     camera = tmp_path / "camera.json"
@@ -62,6 +66,7 @@ def test_unreadable_video_and_bad_camera_one_line_exit_2(tmp_path) -> None:
     assert len(worse.stderr.strip().splitlines()) == 1
 
 
+@pytest.mark.slow
 def test_score_dataset_uses_the_twin_threshold_and_scores_every_sample(sample_video, tmp_path):
     from bench.evaluate.score import score_dataset
 
@@ -92,6 +97,7 @@ def _cut(sample_video, tmp_path, frames) -> tuple:
     return video, camera
 
 
+@pytest.mark.slow
 def test_a_video_that_starts_in_contact_is_refused(sample_video, tmp_path) -> None:
     labels = pd.read_parquet(sample_video / "labels.parquet")
     deflection = labels.pivot(index="frame", columns="whisker", values="deflection_mm").to_numpy()
@@ -111,6 +117,7 @@ def test_a_video_that_starts_in_contact_is_refused(sample_video, tmp_path) -> No
     assert _run(str(fine), "--camera", str(camera), "--out", str(tmp_path / "p")).returncode == 0
 
 
+@pytest.mark.slow
 def test_a_camera_file_of_another_size_is_refused(sample_video, tmp_path) -> None:
     from scenes.profile import load_profile
 
@@ -125,6 +132,7 @@ def test_a_camera_file_of_another_size_is_refused(sample_video, tmp_path) -> Non
     assert "2592x1944 px but the camera model is 1296x972" in run.stderr
 
 
+@pytest.mark.slow
 def test_a_marker_never_seen_is_reported(sample_video, tmp_path) -> None:
     """Black out whisker 0's marker in every frame: the estimate goes on and says so."""
     import itertools
@@ -133,8 +141,7 @@ def test_a_marker_never_seen_is_reported(sample_video, tmp_path) -> None:
 
     labels = pd.read_parquet(sample_video / "labels.parquet")
     first = labels[labels["whisker"] == 0]
-    xs = first[[f"c{k}_x_px" for k in range(4)]].to_numpy()
-    ys = first[[f"c{k}_y_px" for k in range(4)]].to_numpy()
+    xs, ys = np.moveaxis(corners_of(first), -1, 0)
     x0, x1 = int(np.nanmin(xs)) - 6, int(np.nanmax(xs)) + 7
     y0, y1 = int(np.nanmin(ys)) - 6, int(np.nanmax(ys)) + 7
 
@@ -154,6 +161,7 @@ def test_a_marker_never_seen_is_reported(sample_video, tmp_path) -> None:
     assert json.loads((tmp_path / "o" / "branches.json").read_text())["unseen_markers"] == [0]
 
 
+@pytest.mark.slow
 def test_score_flags_a_sample_without_no_contact_frames(sample_video, tmp_path) -> None:
     """A sample cut to start while a whisker is pushed is refused and reported, not scored."""
     import shutil
@@ -172,8 +180,24 @@ def test_score_flags_a_sample_without_no_contact_frames(sample_video, tmp_path) 
     cut = labels[labels["frame"] >= start].copy()
     cut["frame"] -= start
     cut.to_parquet(folder / "labels.parquet")
+    _reseal(dataset, sample_video.name)
     table = score_dataset(dataset, PRESETS["paper"], tmp_path / "scores")
     refused = table[table["sample_id"] == sample_video.name].iloc[0]
     assert refused["outcome"] == "refused"
     assert "no no-contact frames" in refused["refused_reason"]
     assert table[table["branches"] == "none"].iloc[0]["outcome"] == "correct"
+
+
+def _reseal(dataset, sample_id) -> None:
+    """Record an edited sample's files as the dataset's own, as regenerating it would: score
+    refuses files that differ from their recorded SHA-256."""
+    from bench.common.manifest import sha256
+
+    folder = dataset / sample_id
+    record = json.loads((folder / "sample.json").read_text())
+    record["files"] = {name: sha256(folder / name) for name in record["files"]}
+    (folder / "sample.json").write_text(json.dumps(record))
+    manifest = json.loads((dataset / "manifest.json").read_text())
+    for name in [*record["files"], "sample.json"]:
+        manifest["files"][f"{sample_id}/{name}"] = sha256(folder / name)
+    (dataset / "manifest.json").write_text(json.dumps(manifest))

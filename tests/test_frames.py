@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from bench.dataset.labels import corners_px
-from renderers.frames import FrameSampling, marker_region
+from renderers.frame_sampling import FrameSampling, marker_region
 from scenes.array import ArraySpec, T_cam_marker
 from scenes.camera import default_camera
 from scenes.lighting import get_lighting
@@ -75,6 +75,7 @@ ANGLES[:, 6, 0] = np.linspace(0.3, 0.35, 4)
 OFFSETS = np.tile([10.0, 0.0], (4, 1))
 
 
+@pytest.mark.slow
 def test_band_and_full_frame_agree_inside_the_zone(renderers) -> None:
     band, full = renderers[False], renderers[True]
     a = band.render(ANGLES, OFFSETS)
@@ -89,11 +90,13 @@ def test_band_and_full_frame_agree_inside_the_zone(renderers) -> None:
     assert b[: z.y0].any() and not np.isnan(b).any()  # the full frame renders above the band
 
 
+@pytest.mark.slow
 def test_render_checks_shapes(renderers) -> None:
     with pytest.raises(ValueError, match="angles"):
         renderers[False].render(np.zeros((3, 13, 2)), np.zeros((4, 2)))
 
 
+@pytest.mark.slow
 def test_frames_are_rgb_and_the_sky_has_its_colour(renderers) -> None:
     """Where rays escape, a pixel holds the sky's radiance in the sky's colour, channel by
     channel (computed here from the lighting preset and the camera's own rays)."""

@@ -103,6 +103,7 @@ def test_bad_marker_spec(kwargs, field):
         MarkerSpec(**kwargs)
 
 
+@pytest.mark.slow
 def test_scenes_do_not_import_mitsuba():
     code = (
         "import sys, scenes.camera, scenes.marker, scenes.lighting, scenes.study; "

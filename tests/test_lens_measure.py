@@ -114,6 +114,7 @@ def _write(folder: Path, frames: list[np.ndarray], suffix: str = ".png", params=
 # --- PSF ----------------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("blur", ["supersampled", "camera_twin"])
 def test_psf_measured_back_within_10_percent_per_bin(tmp_path, blur):
     """Through the twin, the blur its Bayer demosaicing and MJPEG add is taken off again."""
@@ -294,6 +295,7 @@ def still_marker_footage(tmp_path_factory) -> tuple[Path, Path, float, float]:
     return footage, camera, full_well_e, read_noise_e
 
 
+@pytest.mark.slow
 def test_cli_writes_profile_and_report(tmp_path, still_marker_footage, capsys):
     footage, camera, full_well_e, _ = still_marker_footage
     out = tmp_path / "measured.json"
@@ -311,6 +313,7 @@ def test_cli_writes_profile_and_report(tmp_path, still_marker_footage, capsys):
         assert profile.sources[key].startswith("measured by whiskerbench lens measure from")
 
 
+@pytest.mark.slow
 def test_mjpeg_video_footage_read_up_to_max_frames(tmp_path, still_marker_footage):
     footage = still_marker_footage[0]
     video = tmp_path / "clip.avi"
@@ -326,6 +329,7 @@ def test_mjpeg_video_footage_read_up_to_max_frames(tmp_path, still_marker_footag
     assert "still frames" in report["noise"]["skipped"]  # 2 frames: no run of 5
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     "option, value, message",
     [
@@ -407,6 +411,7 @@ def test_parser_registers_lens_measure():
     assert isinstance(parser, argparse.ArgumentParser)
 
 
+@pytest.mark.slow
 def test_a_colour_sensors_photon_transfer_is_reported_not_written(still_marker_footage):
     """Demosaicing mixes photosites: the fit on the frames is not the sensor's noise."""
     footage = still_marker_footage[0]

@@ -162,6 +162,7 @@ def test_foliage_that_gives_way_releases_the_whisker():
 # -- 6. the rod never enters a branch ------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_rods_never_penetrate_branches():
     spec = ArraySpec()
     rng = np.random.default_rng(1)
@@ -244,6 +245,7 @@ def test_bad_parameters_raise(kwargs):
 # -- speed (printed, not asserted) ---------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_full_array_in_dense_foliage_runs(capsys):
     spec, rng = ArraySpec(), np.random.default_rng(0)
     foliage = [

@@ -58,6 +58,7 @@ def test_bad_variant_names_say_what_is_wrong(name, says):
     assert says in str(info.value) and "\n" not in str(info.value)
 
 
+@pytest.mark.slow
 def test_cli_refuses_a_bad_variant_in_one_line(tmp_path):
     for args in (
         ["detect", "v.mp4", "--camera", "c.json", "--pipeline", "paper/refine=magic"],

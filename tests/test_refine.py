@@ -15,7 +15,8 @@ from pipeline.detect import DetectorConfig, detect_markers
 from pipeline.refine import refine_corners_by_edges
 from scenes.camera import FisheyeCamera, default_camera
 from scenes.conventions import marker_corners_marker, transform_points
-from scenes.marker import BLACK_ALBEDO, WHITE_ALBEDO, get_dictionary
+from scenes.marker import get_dictionary
+from scenes.materials import BLACK_ALBEDO, WHITE_ALBEDO
 from scenes.study import study_pose
 
 ALPHAS_DEG = (0.0, 20.0, 40.0, 60.0, 85.0)
@@ -28,8 +29,9 @@ MODULES = 6  # 4x4 dictionary: 4 code bits + the black border on each side
 
 def _render_grid(size_mm: float) -> list[dict]:
     pytest.importorskip("mitsuba")
-    from bench.study.cells import cell_images, init_worker
+    from bench.study.cells import cell_images, study_renderer
     from bench.study.config import Cell, StudyConfig
+    from renderers.variant import init_worker
     from scenes.profile import Sensor, load_profile
 
     init_worker(None)
@@ -38,10 +40,12 @@ def _render_grid(size_mm: float) -> list[dict]:
         load_profile("ideal"), sensor=Sensor(read_noise_e=0.0, full_well_e=1e7)
     )
     config = StudyConfig(images=1, lightings=("lab",), spp=64, camera=camera)
+    renderer = study_renderer(config)
     cells = []
     for alpha in ALPHAS_DEG:
         for phi in PHIS_DEG:
-            images, window, T_cam_marker = cell_images(config, Cell("lab", size_mm, alpha, phi), 1)
+            cell = Cell("lab", size_mm, alpha, phi)
+            images, window, T_cam_marker = cell_images(config, cell, renderer, 1)
             corners = marker_corners_marker(size_mm)
             gt = camera.lens.project(transform_points(T_cam_marker, corners))
             cells.append(
@@ -77,6 +81,7 @@ def _corner_errors(cells: list[dict], refinement: str) -> tuple[np.ndarray, int]
     return np.concatenate(errors) if errors else np.empty(0), len(errors)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("size_mm", [13.2, 8.8])
 def test_lines_corners_match_ground_truth_over_the_grid(renders, size_mm):
     cells = renders[size_mm]

@@ -10,7 +10,8 @@ import pytest
 from scenes.camera import default_camera
 from scenes.conventions import make_T, transform_points
 from scenes.lighting import Lighting, Sky, Sun, get_lighting, lighting_names
-from scenes.marker import WHITE_ALBEDO, MarkerSpec, carrier_mesh
+from scenes.marker import MarkerSpec, carrier_mesh
+from scenes.materials import WHITE_ALBEDO
 from scenes.study import study_pose
 
 
@@ -32,6 +33,7 @@ def render(variant):
     return _render
 
 
+@pytest.mark.slow
 def test_sky_seen_past_the_marker_matches_the_sky_model(render):
     from renderers.window import Window
 
@@ -57,6 +59,7 @@ def test_sky_seen_past_the_marker_matches_the_sky_model(render):
             )
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["lab", "sun", "backlit"])
 def test_exact_sky_agrees_with_mitsubas_integrator(render, name):
     """The noise-free sky term equals Mitsuba's Monte Carlo estimate in expectation."""
@@ -66,6 +69,7 @@ def test_exact_sky_agrees_with_mitsubas_integrator(render, name):
     assert exact == pytest.approx(mc, rel=0.02)
 
 
+@pytest.mark.slow
 def test_sunlit_white_print_has_the_lambertian_radiance(render):
     """Quiet-zone pixel radiance = albedo * E * cos(incidence) / pi (no sky)."""
     sun = Sun(to_sun_cam=(0.3, -0.4, -0.866), irradiance=10.0, color=(1.0, 1.0, 1.0))
@@ -83,16 +87,18 @@ def test_sunlit_white_print_has_the_lambertian_radiance(render):
     assert pixel == pytest.approx([expected] * 3, rel=1e-3)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", lighting_names())
 def test_marker_detected_facing_the_camera_in_every_lighting(variant, name):
-    from bench.study.cells import cell_images
+    from bench.study.cells import cell_images, study_renderer
     from bench.study.config import Cell, StudyConfig
     from pipeline.detect import detect_markers
     from scenes.profile import load_profile
 
     # The ideal camera: this tests the scene and its light, not the camera twin.
     config = StudyConfig(lightings=(name,), camera=load_profile("ideal"))
-    images, window, _ = cell_images(config, Cell(name, 13.2, 0.0, 0.0), 8)
+    renderer = study_renderer(config)
+    images, window, _ = cell_images(config, Cell(name, 13.2, 0.0, 0.0), renderer, 8)
     ids = [
         [d.marker_id for d in detect_markers(im, config.detector, (window.x0, window.y0))]
         for im in images
@@ -135,6 +141,7 @@ def test_same_seed_same_render_new_seed_new_jitter(render):
     assert np.abs(a.radiance() - c.radiance()).mean() < 0.02  # only anti-aliasing differs
 
 
+@pytest.mark.slow
 def test_scalar_fallback_renders_the_same_image(render):
     """scalar_rgb (the slow fallback) gives the fast variant's image: same rays, exact light."""
     code = """
@@ -170,17 +177,15 @@ print(" ".join(map(str, out.radiance().ravel().tolist())))
 def test_adaptive_antialiasing_matches_every_sample_everywhere(variant, lighting_name, alpha, phi):
     """The adaptive first pass skips samples only where light is flat: the crop equals the
     full-spp render of the same jitter to within the tolerance, edges included."""
-    from bench.study.cells import carrier_outline, init_worker, renderer_for
-    from bench.study.config import StudyConfig
     from renderers.fisheye import ADAPTIVE_TOLERANCE, FisheyeRenderer
+    from renderers.marker_renderer import MarkerRenderer
     from renderers.window import Window
-    from scenes.marker import MarkerSpec
+    from scenes.marker import carrier_outline
+    from scenes.profile import load_profile
     from scenes.study import study_pose
 
-    init_worker(variant)
-    config = StudyConfig()
-    lens = config.camera.lens
-    adaptive, _ = renderer_for(config, lighting_name)
+    lens = load_profile("prototype").lens
+    adaptive = MarkerRenderer(lens, "4x4_50", 0, spp=16).fisheye(lighting_name)
     assert adaptive.adaptive
     full = FisheyeRenderer(lens, adaptive.scene, spp=16, adaptive=False)
     T = study_pose(alpha, phi, 200.0)

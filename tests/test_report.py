@@ -612,6 +612,7 @@ def _assert_png(path: pathlib.Path) -> None:
     assert data[:8] == PNG_MAGIC
 
 
+@pytest.mark.slow
 def test_plot_max_phi_writes_png(grid_summary: pd.DataFrame, tmp_path: pathlib.Path) -> None:
     path = tmp_path / "sub" / "max_phi.png"
     plot_max_phi(max_phi(grid_summary), path)
@@ -626,18 +627,21 @@ def test_plot_max_phi_all_nan(tmp_path: pathlib.Path) -> None:
     _assert_png(path)
 
 
+@pytest.mark.slow
 def test_plot_heatmap_writes_png(grid_summary: pd.DataFrame, tmp_path: pathlib.Path) -> None:
     path = tmp_path / "heatmap.png"
     plot_heatmap(grid_summary, path)
     _assert_png(path)
 
 
+@pytest.mark.slow
 def test_plot_pose_error_writes_png(grid_summary: pd.DataFrame, tmp_path: pathlib.Path) -> None:
     path = tmp_path / "pose.png"
     plot_pose_error(grid_summary, path)
     _assert_png(path)
 
 
+@pytest.mark.slow
 def test_plot_pose_error_at_one_phi_wide_range(
     band_summary: pd.DataFrame, tmp_path: pathlib.Path
 ) -> None:
@@ -665,6 +669,7 @@ def test_plots_reject_unknown_nominal_scale(
         plot_heatmap(band_summary, tmp_path / "h.png", nominal_scale=2.0)
 
 
+@pytest.mark.slow
 def test_plot_pose_error_without_any_detection(tmp_path: pathlib.Path) -> None:
     images = synthetic_images(TINY_GRID, seed=2, steps=(5,))
     images["id_ok"] = False

@@ -7,6 +7,14 @@ import pandas as pd
 import pytest
 
 from bench.evaluate.score import branch_outcome, score_markers
+from scenes.conventions import make_T
+from scenes.tables import (
+    CORNER_COLUMNS,
+    ROTATION_COLUMNS,
+    TRANSLATION_COLUMNS,
+    corner_values,
+    pose_values,
+)
 
 
 @pytest.mark.parametrize(
@@ -32,12 +40,9 @@ def _labels(n_frames: int = 3, n: int = 2) -> pd.DataFrame:
         for m in range(n):
             row = {"frame": f, "marker_id": m, "visible": True, "deflection_mm": 1.0 * f}
             row["contact"] = f >= 1
-            for k in range(4):
-                row[f"c{k}_x_px"], row[f"c{k}_y_px"] = 10.0 * k, 5.0 * m
-            for i in range(3):
-                for j in range(3):
-                    row[f"R_CM_{i}{j}"] = float(i == j)
-            row.update(t_CM_x_mm=0.0, t_CM_y_mm=0.0, t_CM_z_mm=200.0)
+            corners = np.column_stack([10.0 * np.arange(4), np.full(4, 5.0 * m)])
+            row.update({k: v[0] for k, v in corner_values(corners).items()})
+            row.update({k: v[0] for k, v in pose_values(make_T(np.eye(3), [0, 0, 200])).items()})
             rows.append(row)
     return pd.DataFrame(rows)
 
@@ -46,8 +51,8 @@ def test_marker_scores_count_misses_and_errors() -> None:
     labels = _labels()
     det = labels.drop(columns=["visible"]).copy()
     det = det[~((det["frame"] == 2) & (det["marker_id"] == 1))]  # a planted miss
-    det["c0_x_px"] += 0.4  # one corner off by 0.4 px: mean corner error 0.1 px
-    det["t_CM_x_mm"] += 3.0
+    det[CORNER_COLUMNS[0][0]] += 0.4  # one corner off by 0.4 px: mean corner error 0.1 px
+    det[TRANSLATION_COLUMNS[0]] += 3.0
     det["deflection_mm"] += 0.5
     det.loc[det["frame"] == 0, "contact"] = True  # two planted false contacts
     s = score_markers(det, labels, foreign_ids=2)
@@ -61,7 +66,8 @@ def test_marker_scores_count_misses_and_errors() -> None:
     assert s["contact_precision"] == pytest.approx(3 / 5)
     rotated = det.copy()
     c, s_ = np.cos(np.radians(10)), np.sin(np.radians(10))
-    rotated["R_CM_00"], rotated["R_CM_01"], rotated["R_CM_10"], rotated["R_CM_11"] = c, -s_, s_, c
+    for name, value in zip(ROTATION_COLUMNS, [c, -s_, 0, s_, c, 0, 0, 0, 1], strict=True):
+        rotated[name] = value
     assert score_markers(rotated, labels)["rot_err_deg"] == pytest.approx(10.0)
 
 

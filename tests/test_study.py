@@ -24,6 +24,7 @@ def run(tmp_path, name="run", **kwargs):
     return config, out, run_study(config, out, progress=False)
 
 
+@pytest.mark.slow
 def test_outputs(variant, tmp_path):
     config, out, manifest = run(tmp_path)
     for name in (
@@ -67,11 +68,13 @@ def test_outputs(variant, tmp_path):
 def test_crops_start_on_the_mjpeg_block_grid(variant):
     config = StudyConfig(**TINY)
     assert config.camera.crop_grid_px == 16
-    render = cells.render_cell(config, Cell("sun", 13.2, 40.0, 30.0))
+    renderer = cells.study_renderer(config)
+    render = cells.render_cell(renderer, Cell("sun", 13.2, 40.0, 30.0), 0, 200.0, 16)
     w = render.window
     assert w.x0 % 16 == 0 and w.y0 % 16 == 0 and w.width % 16 == 0
 
 
+@pytest.mark.slow
 def test_same_seed_same_summary_other_seed_other_images(variant, tmp_path):
     _, a, _ = run(tmp_path, "a")
     _, b, _ = run(tmp_path, "b")
@@ -81,6 +84,7 @@ def test_same_seed_same_summary_other_seed_other_images(variant, tmp_path):
     assert not pa.corner_err_px_lines.equals(pc.corner_err_px_lines)
 
 
+@pytest.mark.slow
 def test_resume_skips_finished_cells_and_gives_the_same_answer(variant, tmp_path):
     config, out, first = run(tmp_path)
     summary = (out / "summary.csv").read_bytes()
@@ -91,6 +95,7 @@ def test_resume_skips_finished_cells_and_gives_the_same_answer(variant, tmp_path
     assert (out / "summary.csv").read_bytes() == summary
 
 
+@pytest.mark.slow
 def test_a_crash_leaves_no_half_written_file_and_the_rerun_finishes(variant, tmp_path, monkeypatch):
     config = StudyConfig(**TINY)
     out = tmp_path / "crash"
@@ -112,12 +117,14 @@ def test_a_crash_leaves_no_half_written_file_and_the_rerun_finishes(variant, tmp
     assert manifest["cells_resumed"] == 2 and (out / "summary.csv").exists()
 
 
+@pytest.mark.slow
 def test_another_config_in_the_same_folder_is_refused(variant, tmp_path):
     _, out, _ = run(tmp_path)
     with pytest.raises(StudyConfigError, match="another configuration"):
         run_study(StudyConfig(**{**TINY, "images": 7}), out, progress=False)
 
 
+@pytest.mark.slow
 def test_save_images(variant, tmp_path):
     config = StudyConfig(**{**TINY, "alphas_deg": (0.0,), "phis_deg": (0.0,), "images": 3})
     out = tmp_path / "saved"
@@ -139,6 +146,7 @@ def test_wilson_settles_a_cell_at_the_first_count_that_excludes_095():
     assert not settled(152, 160)  # 0.95 inside the interval: keep drawing
 
 
+@pytest.mark.slow
 def test_adaptive_sampling_stops_when_settled(variant, tmp_path):
     """A sharp frontal 13.2 mm marker is always found: 80 images settle it; a marker past the
     image circle's reach is never found: 10 do."""
@@ -166,6 +174,7 @@ def test_refinement_bisects_between_the_last_pass_and_the_first_fail():
     assert _refinement_cells(config, rates) == []  # 22.5 -> 25: within 2.5 deg
 
 
+@pytest.mark.slow
 def test_band_renders_each_geometry_once_for_every_scale(variant, tmp_path, monkeypatch):
     real, renders = cells.render_cell, []
 
@@ -189,11 +198,10 @@ def test_crop_frames_every_visible_marker_corner_even_past_90_degrees():
     edges it holds them all."""
     import numpy as np
 
-    from bench.study.cells import carrier_outline
     from renderers.window import Window
     from scenes.camera import default_camera
     from scenes.conventions import marker_corners_marker, transform_points
-    from scenes.marker import MarkerSpec, carrier_mesh
+    from scenes.marker import MarkerSpec, carrier_mesh, carrier_outline
     from scenes.study import study_pose
 
     camera, spec = default_camera(), MarkerSpec("4x4_50", 0, 13.2)
@@ -215,7 +223,8 @@ def test_reading_each_code_cell_with_more_pixels_recovers_a_blurred_marker(varia
     from pipeline.detect import DetectorConfig, detect_markers
 
     config = StudyConfig(**TINY)
-    images, window, _ = cells.cell_images(config, Cell("sun", 13.2, 60.0, 0.0), 20)
+    renderer = cells.study_renderer(config)
+    images, window, _ = cells.cell_images(config, Cell("sun", 13.2, 60.0, 0.0), renderer, 20)
     found = {
         px: sum(
             any(d.marker_id == 0 for d in detect_markers(im, det, (window.x0, window.y0)))

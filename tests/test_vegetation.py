@@ -7,15 +7,14 @@ import pytest
 import trimesh
 
 from scenes.array import ArraySpec
+from scenes.branch_reach import branch_reach_error, gap_of_branch
 from scenes.vegetation import (
     FOLIAGE_KINDS,
     LEAF_RIM_POINTS,
     NATURAL_TRIANGLE_BUDGET,
     SAMPLING_PENETRATION_MM,
     VegetationSpec,
-    branch_reach_error,
     build_vegetation,
-    gap_of_branch,
 )
 
 ARRAY = ArraySpec()
@@ -209,6 +208,7 @@ def test_natural_contacts_exactly_where_foliage_crosses_the_array_plane(kind, di
     assert vertices[:, 2].min() >= veg.z_front_mm - 1e-9
 
 
+@pytest.mark.slow
 def test_natural_forces_leaves_soft_twigs_stiffer_dense_stiffer():
     def limits(kind):  # pooled over a few seeds: one scene has only a handful of twig crossings
         leaf, twig = [], []

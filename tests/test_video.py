@@ -104,6 +104,7 @@ def test_marker_corners_survive_encoding(tmp_path):
     assert shifts.max() < 0.08
 
 
+@pytest.mark.slow
 def test_full_size_mostly_black_frames(tmp_path):
     rng = np.random.default_rng(0)
     frames = []

@@ -11,26 +11,25 @@ import dataclasses
 import os
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
 
 from bench.common.atomic import write_bytes, write_json
-from bench.dataset.config import DatasetConfig, SampleSpec
-from bench.dataset.sample import SampleFrames, simulate_sample
-from bench.study.cells import init_worker
+from bench.common.manifest import RunClock, build_manifest, claim, hash_files, write_manifest
+from bench.dataset.config import DatasetConfig, DatasetConfigError
+from bench.dataset.sample import sample_recorder, simulate_sample
+from bench.evaluate.speed import pick_sample
 from pipeline.detect import DetectorConfig, detect_markers
+from renderers.variant import init_worker
 
-
-def pick_sample(config: DatasetConfig) -> SampleSpec:
-    """The first sample with both foliage and a branch (the busiest scene), else the first."""
-    samples = config.samples()
-    busy = [s for s in samples if s.foliage != "none" and s.branches_mm]
-    return (busy or samples)[0]
+if TYPE_CHECKING:
+    from renderers.frames import FrameRecorder
 
 
 def _time_frames(
-    frames: SampleFrames, indices: np.ndarray
+    frames: FrameRecorder, indices: np.ndarray
 ) -> tuple[list[np.ndarray], float, float, float]:
     """(images, render s, camera twin s, total s) after one warm-up frame (kernels compile)."""
     frames.frame(int(indices[0]))
@@ -64,8 +63,15 @@ def bench_dataset(
     """Time band and full-frame rendering on the same frames; print and return the figures.
 
     With ``out_dir``, also write the figures (``bench.json``) and a still of the timed frame
-    with the largest deflection, ground truth drawn (``still.png``).
+    with the largest deflection, ground truth drawn (``still.png``), and ``manifest.json``; the
+    folder is claimed before any work (DatasetConfigError on ``out`` if another command's).
     """
+    clock = RunClock()
+    if out_dir is not None:
+        try:
+            claim(out_dir, "bench-dataset")
+        except ValueError as exc:
+            raise DatasetConfigError("out", str(exc)) from None
     chosen = init_worker(variant)
     sample = pick_sample(config)
     sim = simulate_sample(config, sample)
@@ -81,13 +87,14 @@ def bench_dataset(
     for mode, full in (("band", False), ("full", True)):
         sampling = dataclasses.replace(config.sampling, full_frame=full)
         t0 = time.perf_counter()
-        recorder = SampleFrames(config, sample, sim, sampling)
+        recorder = sample_recorder(config, sample, sim, sampling)
         setup_s = time.perf_counter() - t0
         images, render_s, twin_s, total_s = _time_frames(recorder, indices)
         results[mode] = {
             "images": images,
             "rays_per_frame": recorder.renderer.rays_per_frame,
             "region": recorder.renderer.region,
+            "zone": recorder.renderer.zone,
             "setup_s": setup_s,
             "render_fps": len(indices) / render_s,
             "twin_s_per_frame": twin_s / len(indices),
@@ -136,7 +143,7 @@ def bench_dataset(
     }
     if out_dir is not None:
         pick = int(np.argmax(deflection[indices]))
-        zone = SampleFrames(config, sample, sim).renderer.zone
+        zone = results["band"]["zone"]
         write_still(
             Path(out_dir) / "still.png",
             results["band"]["images"][pick],
@@ -145,5 +152,16 @@ def bench_dataset(
             zone,
         )
         write_json(Path(out_dir) / "bench.json", figures)
+        written = [Path(out_dir) / n for n in ("bench.json", "still.png")]
+        config_record = {"dataset": config.to_json(), "frames": frames}
+        record = build_manifest(
+            "bench-dataset",
+            clock,
+            config_record,
+            seed=config.seed,
+            variant=chosen,
+            outputs=hash_files(written, Path(out_dir)),
+        )
+        write_manifest(Path(out_dir), record)
         print(f"wrote {out_dir}/bench.json and still.png (frame {indices[pick]})")
     return figures

@@ -11,95 +11,22 @@ frames is printed beside each speed, so a fast pipeline that misses markers show
 
 from __future__ import annotations
 
-import dataclasses
 import os
-import time
-from collections.abc import Iterator
-from contextlib import contextmanager
 from pathlib import Path
 
 import cv2
-import numpy as np
-import pandas as pd
 
-from bench.benchmarks.dataset import pick_sample
 from bench.common.atomic import write_json
+from bench.common.manifest import RunClock, build_manifest, claim, hash_files, write_manifest
 from bench.dataset.config import DatasetConfig
-from bench.dataset.sample import SampleFrames, simulate_sample
 from bench.evaluate.score import score_markers
-from bench.study.cells import init_worker
+from bench.evaluate.speed import SPEED_SAMPLE, full_frames, one_opencv_thread, time_pipeline
 from pipeline.presets import PipelineConfig
-from pipeline.track import MarkerSet, track
-
-#: The busiest scene: dense leaves, a branch, outdoor whisking (frames from its largest
-#: deflection). Every speed figure is measured on its full frames.
-SPEED_SAMPLE = DatasetConfig(
-    foliage=("dense",),
-    distances=("intermediate",),
-    branches=((0.0,),),
-    protocols=("outdoor",),
-    passes=1,
-)
+from renderers.variant import init_worker
+from scenes.validation import FieldError
 
 #: frames/s each preset should reach (the issue's targets); others have none.
 TARGET_FPS = {"paper": 15.0, "fast": 100.0}
-
-
-def full_frames(config: DatasetConfig, frames: int) -> tuple[list[np.ndarray], pd.DataFrame]:
-    """``frames`` consecutive full frames around the largest deflection, and their labels
-    (renumbered from 0, like the frames)."""
-    sample = pick_sample(config)
-    sim = simulate_sample(config, sample)
-    deflection = sim.labels.groupby("frame")["deflection_mm"].max().to_numpy()
-    start = int(np.clip(np.argmax(deflection) - frames // 2, 0, max(0, len(deflection) - frames)))
-    indices = np.arange(start, min(start + frames, len(deflection)))
-    recorder = SampleFrames(
-        config, sample, sim, dataclasses.replace(config.sampling, full_frame=True)
-    )
-    images = [recorder.frame(int(f)) for f in indices]
-    labels = sim.labels[sim.labels["frame"].isin(indices)].copy()
-    labels["frame"] -= start
-    print(
-        f"sample {sample.sample_id}: {len(images)} full frames ({indices[0]}-{indices[-1]}, "
-        f"largest deflection {deflection.max():.1f} mm)"
-    )
-    return images, labels
-
-
-@contextmanager
-def one_opencv_thread() -> Iterator[None]:
-    """OpenCV on one thread inside the block (single-core speed), as it was after it."""
-    threads = cv2.getNumThreads()
-    cv2.setNumThreads(1)
-    try:
-        yield
-    finally:
-        cv2.setNumThreads(threads)
-
-
-def time_pipeline(
-    images: list[np.ndarray],
-    config: DatasetConfig,
-    pipeline: PipelineConfig,
-    min_seconds: float,
-) -> tuple[float, pd.DataFrame]:
-    """(best frames/s over repeats, the detections of one run)."""
-    markers = MarkerSet(config.array.marker_ids, config.array.marker_size_mm)
-    best, total, result = 0.0, 0.0, None
-    while result is None or total < min_seconds:
-        t0 = time.perf_counter()
-        result = track(
-            images,
-            config.camera.lens,
-            markers,
-            pipeline.detector,
-            pipeline.search,
-            pipeline.pose_method,
-        )
-        elapsed = time.perf_counter() - t0
-        total += elapsed
-        best = max(best, len(images) / elapsed)
-    return best, result.detections
 
 
 def bench_pipeline(
@@ -110,7 +37,17 @@ def bench_pipeline(
     variant: str | None = None,
     out: Path | None = None,
 ) -> dict:
-    """Print and return frames/s, ratio to the first pipeline, and recall, per pipeline."""
+    """Print and return frames/s, ratio to the first pipeline, and recall, per pipeline.
+
+    With ``out``, also write ``bench.json`` and ``manifest.json`` there; the folder is claimed
+    before any work (FieldError on ``out`` if another command's).
+    """
+    clock = RunClock()
+    if out is not None:
+        try:
+            claim(out, "bench-pipeline")
+        except ValueError as exc:
+            raise FieldError("out", str(exc)) from None
     init_worker(variant)
     images, labels = full_frames(config, frames)
     with one_opencv_thread():
@@ -145,5 +82,19 @@ def bench_pipeline(
     }
     if out is not None:
         write_json(Path(out) / "bench.json", figures)
+        config_record = {
+            "pipelines": [p.to_json() for p in pipelines],
+            "frames": frames,
+            "min_seconds": min_seconds,
+            "sample": config.to_json(),
+        }
+        record = build_manifest(
+            "bench-pipeline",
+            clock,
+            config_record,
+            seed=config.seed,
+            outputs=hash_files([Path(out) / "bench.json"], Path(out)),
+        )
+        write_manifest(Path(out), record)
         print(f"wrote {out}/bench.json")
     return figures

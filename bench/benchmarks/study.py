@@ -18,29 +18,33 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from bench.study.cells import camera_images, init_worker, renderer_for
-from bench.study.config import StudyConfig
+from bench.study.cells import camera_images, study_renderer
+from bench.study.config import Cell, StudyConfig
 from bench.study.run import run_study
 from pipeline.detect import detect_markers
 from renderers.camera_twin import optical_image
+from renderers.marker_renderer import MarkerRenderer
+from renderers.variant import init_worker
+from renderers.window import Window
+from scenes.lighting import get_lighting
 from scenes.study import study_pose
 
 FULL_FRAME_IMAGES = 4  # images drawn per full-frame cell (each is a 5-megapixel frame)
 
 
-def _full_frame_cell(config: StudyConfig, cell, n_images: int) -> dict:
+def _full_frame_cell(
+    config: StudyConfig, renderer: MarkerRenderer, cell: Cell, n_images: int
+) -> dict:
     """Render one cell as a full frame, draw ``n_images`` images, detect on full frames."""
-    from renderers.window import Window
-
-    renderer, _ = renderer_for(config, cell.lighting)
     T = study_pose(cell.alpha_deg, cell.phi_deg, config.distance_mm)
-    renderer.scene.set_pose(T, cell.size_mm)
+    window = Window.full(config.camera.lens)
     t0 = time.perf_counter()
-    rendered = renderer.render(Window.full(config.camera.lens), seed=1)
+    rendered = renderer.render(cell.lighting, T, cell.size_mm, window, seed=1)
     t1 = time.perf_counter()
     irradiance = optical_image(rendered.radiance(), config.camera)
     rng = np.random.default_rng(0)
-    images = camera_images(config, config.camera, cell.lighting, irradiance, (0, 0), n_images, rng)
+    exposure = config.exposure * get_lighting(cell.lighting).exposure
+    images = camera_images(config.camera, irradiance, (0, 0), n_images, rng, exposure)
     t2 = time.perf_counter()
     found = [
         any(d.marker_id == config.marker_id for d in detect_markers(im, config.detector))
@@ -93,8 +97,9 @@ def bench_detectability(
     spread = np.linspace(0, len(cells) - 1, max(1, full_frame_cells - 1) + 2)[1:-1]
     picks = [frontal] + [cells[int(i)] for i in spread][: max(0, full_frame_cells - 1)]
     full = []
+    renderer = study_renderer(config)
     for cell in picks:
-        result = _full_frame_cell(config, cell, FULL_FRAME_IMAGES)
+        result = _full_frame_cell(config, renderer, cell, FULL_FRAME_IMAGES)
         full.append(result)
         row = crop_rates[
             (crop_rates.size_mm == cell.size_mm)

@@ -11,12 +11,14 @@ import math
 import sys
 from pathlib import Path
 
-from bench.cli.args import float_list
-from bench.common.atomic import check_writable, write_json
+from bench.cli.args import check_out_file, float_list
+from bench.cli.limits import check_memory
+from bench.common.atomic import write_json
 from scenes.calibration_import import FORMATS, CalibrationError, import_calibration
 from scenes.camera import FisheyeCamera
 from scenes.lens_models import PARAM_NAMES
 from scenes.profile import CameraProfile, ProfileError, load_profile, shipped_profiles
+from scenes.validation import FieldError
 
 #: importer fields that are options of ``camera import``; any other field is in FILE
 IMPORT_OPTION_OF_FIELD = {
@@ -148,6 +150,11 @@ def cmd_camera_project(args: argparse.Namespace) -> int:
     for azimuth in args.azimuth_deg:
         if not (math.isfinite(azimuth) and -360.0 <= azimuth <= 360.0):
             return _fail(args, "--azimuth-deg", f"{azimuth:g}: allowed range is [-360, 360]")
+    rays = len(args.theta_deg) * len(args.azimuth_deg)
+    try:  # one CSV line of about 50 characters (a 100-byte str) per ray, held until printed
+        check_memory("theta_deg", rays, 100, f"{rays} rays (--theta-deg x --azimuth-deg)")
+    except FieldError as exc:
+        return _fail(args, "--theta-deg", exc.detail)
     lines = ["theta_deg,azimuth_deg,x_px,y_px"]
     for azimuth in args.azimuth_deg:
         for theta in args.theta_deg:
@@ -168,9 +175,9 @@ def cmd_camera_import(args: argparse.Namespace) -> int:
     if not name:
         return _fail(args, "--name", "must be a non-empty string")
     try:
-        check_writable(out.parent)
-    except ValueError as exc:
-        return _fail(args, "--out", str(exc))
+        check_out_file(out)
+    except FieldError as exc:
+        return _fail(args, "--out", exc.detail)
     try:
         lens = import_calibration(args.file, args.format, args.camera_index, args.theta_max_deg)
     except CalibrationError as exc:

@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
+from bench.cli import limits
+from bench.cli.args import check_out_folder, distinct, name_list, seed
 from bench.dataset.config import (
     DEFAULT_BRANCHES,
     DEFAULT_DISTANCES,
@@ -15,7 +16,7 @@ from bench.dataset.config import (
     branches_name,
 )
 from bench.study.config import profile_from_option
-from renderers.frames import FrameSampling
+from renderers.frame_sampling import FrameSampling
 
 #: A few short samples: one foliage, one distance, no / one / two branches, one outdoor pass.
 QUICK = {
@@ -43,40 +44,40 @@ OPTION_OF_FIELD = {
     "subframes": "--subframes",
     "workers": "--workers",
     "out": "--out",
+    "seed": "--seed",
+    "dataset_grid": "--foliage x --distance x --branches x --protocol x --lighting",
+    "frames": "--frames",
 }
 
 
-def _names(text: str) -> tuple[str, ...]:
-    return tuple(v.strip() for v in text.split(",") if v.strip())
-
-
 def _branch_sets(text: str) -> tuple[tuple[float, ...], ...]:
-    """'none,0,50,0+100' -> ((), (0,), (50,), (0, 100))."""
+    """'none,0,50,0+100' -> ((), (0,), (50,), (0, 100)); each configuration once."""
     out = []
-    for item in _names(text):
+    for item in name_list("--branches")(text):
         if item == "none":
             out.append(())
             continue
         try:
-            out.append(tuple(float(v) for v in item.split("+")))
+            branches = distinct("--branches", [float(v) for v in item.split("+")], item)
         except ValueError:
             raise argparse.ArgumentTypeError(
                 f"--branches: {item!r} is not 'none' or mm positions joined by '+'"
             ) from None
-    if not out:
-        raise argparse.ArgumentTypeError("--branches: needs at least one configuration")
+        out.append(branches)
+    keys = ["+".join(f"{x:g}" for x in sorted(b)) or "none" for b in out]  # 0+50 is 50+0
+    distinct("--branches", keys, text)
     return tuple(out)
 
 
 def add_dataset_options(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--foliage",
-        type=_names,
+        type=name_list("--foliage"),
         help=f"foliage kinds (default {','.join(DEFAULT_FOLIAGE)}; also none)",
     )
     p.add_argument(
         "--distance",
-        type=_names,
+        type=name_list("--distance"),
         help=f"sampling distances (default {','.join(DEFAULT_DISTANCES)})",
     )
     p.add_argument(
@@ -86,10 +87,15 @@ def add_dataset_options(p: argparse.ArgumentParser) -> None:
         f"{','.join(branches_name(b) for b in DEFAULT_BRANCHES)})",
     )
     p.add_argument(
-        "--protocol", type=_names, help=f"protocols (default {','.join(DEFAULT_PROTOCOLS)})"
+        "--protocol",
+        type=name_list("--protocol"),
+        help=f"protocols (default {','.join(DEFAULT_PROTOCOLS)})",
     )
     p.add_argument(
-        "--lighting", type=_names, default=("sun",), help="lighting presets (default sun)"
+        "--lighting",
+        type=name_list("--lighting"),
+        default=("sun",),
+        help="lighting presets (default sun)",
     )
     p.add_argument(
         "--frames-step",
@@ -123,7 +129,7 @@ def add_dataset_options(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--full-frame", action="store_true", help="render whole frames, not just the band"
     )
-    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--seed", type=seed, default=0, help="random seed, 0..2**32-1 (default 0)")
     p.add_argument(
         "--variant",
         choices=("cuda_ad_rgb", "llvm_ad_rgb"),
@@ -159,13 +165,15 @@ def dataset_config(args: argparse.Namespace) -> DatasetConfig:
 
 
 def cmd_dataset(args: argparse.Namespace) -> int:
-    from bench.dataset.config import DatasetConfigError
     from bench.dataset.generate import run_dataset
 
     config = dataset_config(args)
-    out = Path(args.out or ("data/quick" if args.quick else "data/default"))
-    if args.workers < 1:
-        raise DatasetConfigError("workers", f"{args.workers}: must be >= 1")
+    out = check_out_folder(args.out or ("data/quick" if args.quick else "data/default"))
+    limits.check_dataset(config, args.workers)
+    args.kept = (
+        f"finished samples are kept in {out}/<sample id>/ (each verified by its sample.json); "
+        "rerun the same command to resume"
+    )
     manifest = run_dataset(config, out, variant=args.variant, workers=args.workers)
     rate = manifest["frames_per_s"]
     print(
@@ -185,6 +193,15 @@ def cmd_dataset(args: argparse.Namespace) -> int:
 
 def cmd_bench_dataset(args: argparse.Namespace) -> int:
     from bench.benchmarks.dataset import bench_dataset
+    from bench.dataset.config import DatasetConfigError
 
-    bench_dataset(dataset_config(args), frames=args.frames, variant=args.variant, out_dir=args.out)
+    config = dataset_config(args)
+    if args.out is not None:
+        check_out_folder(args.out)
+    if args.frames < 1:
+        raise DatasetConfigError("frames", f"{args.frames}: must be >= 1")
+    lens = config.camera.lens
+    limits.check_frames("frames", args.frames, lens.width_px, lens.height_px, "frames")
+    limits.check_dataset(config)
+    bench_dataset(config, frames=args.frames, variant=args.variant, out_dir=args.out)
     return 0

@@ -5,10 +5,15 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import math
 import sys
 from pathlib import Path
 
+from bench.cli import limits
+from bench.cli.args import check_out_folder, name_list
 from pipeline.presets import CHOICES, PRESETS, PipelineConfig, get_pipeline
+from renderers.variant import VARIANTS
+from scenes.validation import FieldError
 
 VARIANT_HELP = (
     f"a preset ({', '.join(PRESETS)}), optionally changed by /CHOICE=VALUE parts, e.g. "
@@ -24,11 +29,7 @@ def _pipeline(text: str) -> PipelineConfig:
 
 
 def _pipelines(text: str) -> list[PipelineConfig]:
-    names = [n for n in text.split(",") if n]
-    if not names:
-        raise argparse.ArgumentTypeError("--pipelines: needs at least one name")
-    if len(set(names)) != len(names):
-        raise argparse.ArgumentTypeError(f"--pipelines: {text}: a name is repeated")
+    names = name_list("--pipelines")(text)
     return [_pipeline(n) for n in names]
 
 
@@ -63,15 +64,23 @@ def cmd_detect(args: argparse.Namespace) -> int:
         print(f"whiskerbench detect: error: {message}", file=sys.stderr)
         return 2
 
-    if args.foliage_threshold is not None and not args.foliage_threshold >= 0:
-        return fail(f"--foliage-threshold: {args.foliage_threshold}: must be >= 0 mm")
+    threshold = args.foliage_threshold
+    if threshold is not None and not (math.isfinite(threshold) and threshold >= 0):
+        return fail(f"--foliage-threshold: {threshold}: must be a finite number >= 0 mm")
     try:
         camera = load_profile(args.camera).lens
     except ProfileError as exc:
         return fail(f"--camera: {exc.option_detail}")
+    if args.video.is_dir():
+        return fail(f"{args.video}: is a folder, not a video file")
     if not args.video.is_file():
         return fail(f"{args.video}: no such file")
     out = args.out or args.video.with_name(f"{args.video.stem}.{args.pipeline.folder_name}")
+    try:
+        check_out_folder(out)
+    except FieldError as exc:
+        return fail(f"--out: {exc.detail}")
+    args.kept = f"files finished in {out} are complete; rerun the same command to redo the rest"
     try:
         record = run_detect(args.video, camera, args.pipeline, out, args.foliage_threshold)
     except ValueError as exc:  # unreadable or truncated video, no no-contact frames, ...
@@ -103,12 +112,25 @@ def add_score_options(p: argparse.ArgumentParser) -> None:
 def cmd_score(args: argparse.Namespace) -> int:
     from bench.evaluate.score import score_dataset
 
+    def fail(message: str) -> int:
+        print(f"whiskerbench score: error: {' '.join(message.split())}", file=sys.stderr)
+        return 2
+
+    if not args.dataset.is_dir():
+        return fail(f"{args.dataset}: not a dataset folder")
     out = args.out or args.dataset / "scores" / args.pipeline.folder_name
+    try:
+        check_out_folder(out)
+    except FieldError as exc:
+        return fail(f"--out: {exc.detail}")
+    args.kept = (
+        f"samples scored so far are kept in {out}/<sample id>/; samples.csv is written at the "
+        "end: rerun the same command"
+    )
     try:
         table = score_dataset(args.dataset, args.pipeline, out)
     except (ValueError, FileNotFoundError) as exc:
-        print(f"whiskerbench score: error: {exc}", file=sys.stderr)
-        return 2
+        return fail(str(exc))
     correct = (table["outcome"] == "correct").mean()
     refused = table[table["outcome"] == "refused"]
     print(
@@ -142,7 +164,9 @@ def add_compare_options(p: argparse.ArgumentParser) -> None:
         help="camera profile of the failure-boundary sweeps: a shipped name or a JSON file "
         "(default: the dataset's own, from its samples' camera.json)",
     )
-    p.add_argument("--variant", help="Mitsuba variant (default: the fastest available)")
+    p.add_argument(
+        "--variant", choices=VARIANTS, help="Mitsuba variant (default: the fastest available)"
+    )
 
 
 def _sweep_camera(option: str | None, dataset: Path):
@@ -165,7 +189,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     from bench.evaluate.sweep_config import QUICK_SWEEP, SweepConfig
 
     def fail(message: str) -> int:
-        print(f"whiskerbench compare: error: {message}", file=sys.stderr)
+        print(f"whiskerbench compare: error: {' '.join(message.split())}", file=sys.stderr)
         return 2
 
     if args.quick:
@@ -174,7 +198,19 @@ def cmd_compare(args: argparse.Namespace) -> int:
         return fail(f"--seeds: {args.seeds}: must be >= 5 (use --quick for a smoke run)")
     else:
         sweep = SweepConfig(seeds=args.seeds)
+    if not args.dataset.is_dir():
+        return fail(f"{args.dataset}: not a dataset folder")
     out = args.out or args.dataset / "compare"
+    try:
+        check_out_folder(args.dataset / "scores", "dataset")  # each variant's scores go there
+        check_out_folder(out)
+        limits.check_sweep(sweep, len(args.pipelines))
+    except FieldError as exc:
+        return fail(f"{'DATASET' if exc.field == 'dataset' else '--' + exc.field}: {exc.detail}")
+    args.kept = (
+        f"scores of the variants finished so far are kept in {args.dataset / 'scores'}; the "
+        f"report in {out} is written at the end: rerun the same command"
+    )
     try:
         camera = _sweep_camera(args.camera, args.dataset)
         if camera is not None:
@@ -201,14 +237,21 @@ def add_bench_pipeline_options(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--frames", type=int, default=30, help="full frames to time (default 30)")
     p.add_argument("--out", type=Path, help="also write bench.json into this folder")
-    p.add_argument("--variant", help="Mitsuba variant (default: the fastest available)")
+    p.add_argument(
+        "--variant", choices=VARIANTS, help="Mitsuba variant (default: the fastest available)"
+    )
 
 
 def cmd_bench_pipeline(args: argparse.Namespace) -> int:
     from bench.benchmarks.pipeline import bench_pipeline
+    from bench.dataset.config import DatasetConfigError
+    from bench.evaluate.speed import SPEED_SAMPLE
 
     if args.frames < 2:
-        print(f"whiskerbench bench: error: --frames: {args.frames}: must be >= 2", file=sys.stderr)
-        return 2
+        raise DatasetConfigError("frames", f"{args.frames}: must be >= 2")
+    lens = SPEED_SAMPLE.camera.lens
+    limits.check_frames("frames", args.frames, lens.width_px, lens.height_px, "full frames")
+    if args.out is not None:
+        check_out_folder(args.out)
     bench_pipeline(args.pipelines, frames=args.frames, variant=args.variant, out=args.out)
     return 0

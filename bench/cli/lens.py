@@ -57,7 +57,8 @@ def add_lens_parser(subparsers: argparse._SubParsersAction, parser_class: type) 
 
 
 def cmd_lens_measure(args: argparse.Namespace) -> int:
-    from bench.common.atomic import check_writable, write_json
+    from bench.cli.args import check_out_file
+    from bench.common.atomic import write_json
     from bench.lens.measure import FootageError, measure_lens
     from scenes.profile import ProfileError, load_profile
     from scenes.validation import FieldError
@@ -74,10 +75,11 @@ def cmd_lens_measure(args: argparse.Namespace) -> int:
     except ProfileError as exc:
         return fail(f"--camera: {exc.option_detail}")
     try:
-        for folder in {args.out.parent, report_path.parent}:
-            check_writable(folder)
-    except ValueError as exc:
-        return fail(f"--out: {exc}")
+        check_out_file(args.out)
+        check_out_file(report_path, "report")
+    except FieldError as exc:
+        return fail(f"--{exc.field}: {exc.detail}")
+    args.kept = "nothing was written (the profile and report are written at the end)"
     try:
         new_profile, report = measure_lens(
             args.footage,
@@ -86,7 +88,7 @@ def cmd_lens_measure(args: argparse.Namespace) -> int:
             bin_deg=args.bin_deg,
             max_frames=args.max_frames,
             still=args.still,
-            progress=True,
+            progress=sys.stderr.isatty(),
         )
     except FieldError as exc:
         return fail(f"{OPTION_OF_FIELD.get(exc.field, exc.field)}: {exc.detail}")

@@ -1,16 +1,19 @@
 """The ``whiskerbench`` command line: parse, call an importable function, report.
 
-Bad input gets one line naming the option and the allowed range, exit code 2, nothing written.
+Bad input gets one line naming the option and the allowed range, exit code 2, nothing written;
+an internal error a short bug report and exit code 1; Ctrl-C exit code 130 and what is kept.
 """
 
 from __future__ import annotations
 
 import argparse
-import os
+import re
 import sys
+import traceback
 from pathlib import Path
 
-from bench.cli.args import float_list
+from bench.cli import limits
+from bench.cli.args import check_out_folder, float_list, seed
 from bench.cli.camera import add_camera_parser
 from bench.cli.dataset import OPTION_OF_FIELD as DATASET_OPTION_OF_FIELD
 from bench.cli.dataset import add_dataset_options, cmd_bench_dataset, cmd_dataset
@@ -31,7 +34,6 @@ from bench.study.config import (
     DEFAULT_PHIS_DEG,
     DEFAULT_SIZES_MM,
     StudyConfig,
-    StudyConfigError,
     detector_from_option,
     profile_from_option,
 )
@@ -54,13 +56,19 @@ OPTION_OF_FIELD = {
     "psf_scales": "--psf-scale",
     "exposure": "--exposure",
     "detector": "--cell-px",
+    "seed": "--seed",
+    "study_grid": "--sizes x --alphas x --phis x --lighting",
+    "full_frame_cells": "--full-frame-cells",
 }
+#: Frames of the traceback an internal error's bug report shows.
+BUG_REPORT_FRAMES = 4
 
 
 class _Parser(argparse.ArgumentParser):
     """argparse, but an error is one line (no usage block): option, problem, exit code 2."""
 
     def error(self, message: str):
+        message = re.sub(r"^argument (\S+): \1: ", r"\1: ", message)  # the option named once
         self.exit(2, f"{self.prog}: error: {message} (see --help)\n")
 
 
@@ -136,7 +144,7 @@ def _add_study_options(p: argparse.ArgumentParser) -> None:
         help="one or more of lab, sun, canopy, backlit (default sun)",
     )
     p.add_argument("--dictionary", default="4x4_50", help="ArUco dictionary (default 4x4_50)")
-    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--seed", type=seed, default=0, help="random seed, 0..2**32-1 (default 0)")
     p.add_argument("--spp", type=int, default=16, help="samples per pixel of the clean render")
     p.add_argument(
         "--variant",
@@ -146,9 +154,8 @@ def _add_study_options(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--workers",
         type=int,
-        default=os.cpu_count() or 1,
-        help="worker processes, one cell at a time each (default: one per core; 1 runs "
-        "in this process)",
+        help="worker processes, one cell at a time each (default: one per core, as many as "
+        "memory allows; 1 runs in this process)",
     )
     p.add_argument(
         "--quick",
@@ -198,11 +205,12 @@ def _cmd_detectability(args: argparse.Namespace) -> int:
     from bench.study.run import run_study
 
     config = study_config(args)
-    if args.workers < 1:
-        raise StudyConfigError("workers", f"{args.workers}: must be >= 1")
-    out = Path(args.out) if args.out else default_out(config, args.quick)
+    out = check_out_folder(args.out if args.out is not None else default_out(config, args.quick))
+    workers = limits.default_workers() if args.workers is None else args.workers
+    limits.check_study(config, workers)
+    args.kept = f"finished cells are kept in {out / 'cells'}; rerun the same command to resume"
     manifest = run_study(
-        config, out, variant=args.variant, workers=args.workers, save_images=args.save_images
+        config, out, variant=args.variant, workers=workers, save_images=args.save_images
     )
     print(
         f"wrote {out}/ ({manifest['cells_total']} cells, {manifest['cells_resumed']} resumed; "
@@ -219,8 +227,11 @@ def _cmd_bench_detectability(args: argparse.Namespace) -> int:
     from bench.benchmarks.study import bench_detectability
 
     config = study_config(args)
+    workers = limits.default_workers() if args.workers is None else args.workers
+    limits.check_study(config, workers)
+    limits.check_full_frame_cells(args.full_frame_cells, config)
     bench_detectability(
-        config, variant=args.variant, full_frame_cells=args.full_frame_cells, workers=args.workers
+        config, variant=args.variant, full_frame_cells=args.full_frame_cells, workers=workers
     )
     return 0
 
@@ -290,21 +301,43 @@ def _parser() -> argparse.ArgumentParser:
     return parser
 
 
+def command_name(args: argparse.Namespace) -> str:
+    """``detectability``, ``bench pipeline``, ``camera import``, ...: the command as typed."""
+    subcommands = ("benchmark", "camera_command", "lens_command")
+    return " ".join([args.command, *(getattr(args, k) for k in subcommands if hasattr(args, k))])
+
+
+def bug_report(command: str, exc: BaseException) -> str:
+    """An internal error in a few lines: what, a request, and the innermost frames."""
+    frames = traceback.extract_tb(exc.__traceback__)[-BUG_REPORT_FRAMES:]
+    detail = str(exc).splitlines()[0] if str(exc) else ""
+    return "\n".join(
+        [
+            f"whiskerbench {command}: internal error: {type(exc).__name__}: {detail}",
+            "please report this with the command line; traceback:",
+            *(f'  File "{f.filename}", line {f.lineno}, in {f.name}: {f.line}' for f in frames),
+        ]
+    )
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = _parser()
     args = parser.parse_args(argv)
+    command = command_name(args)
+    args.kept = "nothing was written"
     try:
         return args.func(args)
     except FieldError as exc:
         option = {**OPTION_OF_FIELD, **DATASET_OPTION_OF_FIELD}.get(exc.field, exc.field)
-        print(f"whiskerbench {args.command}: error: {option}: {exc.detail}", file=sys.stderr)
+        detail = " ".join(exc.detail.split())  # one line, whatever the message held
+        print(f"whiskerbench {command}: error: {option}: {detail}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print(
-            "interrupted: finished cells are kept; rerun the same command to resume",
-            file=sys.stderr,
-        )
+        print(f"whiskerbench {command}: interrupted: {args.kept}", file=sys.stderr)
         return 130
+    except Exception as exc:  # a bug, not the input: say so, briefly
+        print(bug_report(command, exc), file=sys.stderr)
+        return 1
 
 
 if __name__ == "__main__":

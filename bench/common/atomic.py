@@ -1,7 +1,8 @@
 """Atomic file output: write to a temporary file beside the target, then rename over it.
 
 A crash or Ctrl-C leaves either the old file or the new one, never half of one; the temporary
-file is removed on failure.
+file is removed on failure. A SIGKILL cannot remove it, so its name says whose it is
+(``.<name>.<pid>.tmp-<random><suffix>``) and :func:`clean_stale` deletes those of dead processes.
 """
 
 from __future__ import annotations
@@ -9,6 +10,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import re
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
@@ -20,8 +22,9 @@ def atomic_path(path: Path) -> Iterator[Path]:
     """Yield a temporary path (same folder and suffix) that replaces ``path`` on success."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
+    # the target's suffix kept last: writers (video, images) pick the format from it
     fd, tmp = tempfile.mkstemp(
-        prefix=f".{path.stem}.", suffix=f".tmp{path.suffix}", dir=path.parent
+        prefix=f".{path.name}.{os.getpid()}.tmp-", suffix=path.suffix, dir=path.parent
     )
     os.close(fd)
     try:
@@ -31,6 +34,37 @@ def atomic_path(path: Path) -> Iterator[Path]:
     finally:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
+
+
+_TEMP_NAME = re.compile(r"^\..+\.(?P<pid>[0-9]+)\.tmp-[A-Za-z0-9_]+(\.[^.]+)?$")
+
+
+def clean_stale(folder: Path) -> list[Path]:
+    """Delete the temporary files under ``folder`` (any depth) left by processes no longer alive.
+
+    A killed run leaves them behind; a live process's files (another run writing there now)
+    are kept. Returns what was deleted.
+    """
+    removed = []
+    for path in sorted(Path(folder).rglob(".*.tmp-*")):
+        match = _TEMP_NAME.match(path.name)
+        if match and path.is_file() and not _alive(int(match["pid"])):
+            with contextlib.suppress(FileNotFoundError):
+                path.unlink()
+                removed.append(path)
+    return removed
+
+
+def _alive(pid: int) -> bool:
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # someone else's process
+        return True
+    return True
 
 
 def _umask() -> int:

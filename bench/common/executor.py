@@ -2,13 +2,24 @@
 
 Each task is a pure function of its arguments that writes its own output atomically, so a
 task can run anywhere, twice, or be skipped when its output exists; a Dask client's ``map``
-would slot in here the same way. A :class:`TaskPool` keeps its worker processes (and what they
-loaded: Mitsuba, compiled kernels) across several batches, e.g. a study's refinement rounds.
+would slot in here the same way. A :class:`TaskPool` keeps its worker processes across several
+batches (e.g. a study's refinement rounds), and with them what each built once: a pool's
+``setup`` runs once per worker (once in this process without workers), and what it returns,
+the worker's *context* (a loaded renderer, say), is handed to every task: ``fn(task, context)``.
+
+Workers die with their parent, SIGKILL included: on Linux the kernel kills them when it exits
+(``PR_SET_PDEATHSIG``), and everywhere a thread in each worker exits it once its parent is gone.
 """
 
 from __future__ import annotations
 
+import ctypes
 import multiprocessing
+import os
+import signal
+import sys
+import threading
+import time
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from typing import Any, TypeVar
@@ -17,25 +28,71 @@ from tqdm import tqdm
 
 T = TypeVar("T")
 
+PR_SET_PDEATHSIG = 1  # from <linux/prctl.h>
+#: How often a worker's watch thread checks that its parent is alive (s).
+PARENT_POLL_S = 0.2
+
+# A worker process runs one pool's tasks: its context is set once, by _start_worker.
+_worker_context: Any = None
+
+
+def exit_with_parent(parent_pid: int) -> None:
+    """End this process as soon as ``parent_pid`` is no longer its parent (the parent died).
+
+    The kernel's parent-death signal acts at once but exists on Linux only, and fires when the
+    thread that started this process exits; the watch thread covers other systems, and a parent
+    that died before the signal was armed is caught by the first check.
+    """
+    if sys.platform.startswith("linux"):
+        try:
+            libc = ctypes.CDLL(None, use_errno=True)
+            libc.prctl(PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
+        except (OSError, AttributeError):
+            pass  # no prctl: the watch thread alone
+    if os.getppid() != parent_pid:
+        os._exit(1)
+
+    def watch() -> None:
+        while os.getppid() == parent_pid:
+            time.sleep(PARENT_POLL_S)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="parent-watch", daemon=True).start()
+
+
+def _start_worker(parent_pid: int, setup: Callable[..., Any] | None, setup_args: tuple) -> None:
+    global _worker_context
+    exit_with_parent(parent_pid)
+    _worker_context = setup(*setup_args) if setup is not None else None
+
+
+def _run_in_worker(fn: Callable[[T, Any], Any], task: T) -> Any:
+    return fn(task, _worker_context)
+
 
 class TaskPool:
-    """``workers`` processes (``spawn``) started once, or this process when ``workers <= 1``."""
+    """``workers`` processes (``spawn``) started once, or this process when ``workers <= 1``.
+
+    ``setup(*setup_args)`` builds each worker's context (None without ``setup``).
+    """
 
     def __init__(
         self,
         workers: int = 1,
-        initializer: Callable[..., None] | None = None,
-        initargs: tuple = (),
+        setup: Callable[..., Any] | None = None,
+        setup_args: tuple = (),
     ) -> None:
         self.workers = workers
         self._pool = None
+        self._context = None
         if workers <= 1:
-            if initializer is not None:
-                initializer(*initargs)
+            self._context = setup(*setup_args) if setup is not None else None
             return
-        ctx = multiprocessing.get_context("spawn")
         self._pool = ProcessPoolExecutor(
-            workers, mp_context=ctx, initializer=initializer, initargs=initargs
+            workers,
+            mp_context=multiprocessing.get_context("spawn"),
+            initializer=_start_worker,
+            initargs=(os.getpid(), setup, setup_args),
         )
 
     def __enter__(self) -> TaskPool:
@@ -47,22 +104,25 @@ class TaskPool:
 
     def map(
         self,
-        fn: Callable[[T], Any],
+        fn: Callable[[T, Any], Any],
         tasks: Iterable[T],
         desc: str = "tasks",
         progress: bool = True,
         unit: str = "cell",
     ) -> Iterator[Any]:
-        """Yield ``fn(task)`` for each task (in completion order), with a progress bar."""
+        """Yield ``fn(task, context)`` for each task (in completion order), with a progress bar.
+
+        In a pool ``fn`` must be importable (a module-level function) and tasks picklable.
+        """
         tasks = list(tasks)
         bar = tqdm(total=len(tasks), desc=desc, unit=unit, disable=not progress, smoothing=0.1)
         try:
             if self._pool is None:
                 for task in tasks:
-                    yield fn(task)
+                    yield fn(task, self._context)
                     bar.update()
                 return
-            futures = [self._pool.submit(fn, task) for task in tasks]
+            futures = [self._pool.submit(_run_in_worker, fn, task) for task in tasks]
             try:
                 for future in as_completed(futures):
                     yield future.result()
@@ -76,15 +136,15 @@ class TaskPool:
 
 
 def run_tasks(
-    fn: Callable[[T], Any],
+    fn: Callable[[T, Any], Any],
     tasks: Iterable[T],
     workers: int = 1,
-    initializer: Callable[..., None] | None = None,
-    initargs: tuple = (),
+    setup: Callable[..., Any] | None = None,
+    setup_args: tuple = (),
     desc: str = "tasks",
     progress: bool = True,
     unit: str = "cell",
 ) -> Iterator[Any]:
-    """Yield ``fn(task)`` for each task (in completion order) on a pool of its own."""
-    with TaskPool(workers, initializer, initargs) as pool:
+    """Yield ``fn(task, context)`` for each task (in completion order) on a pool of its own."""
+    with TaskPool(workers, setup, setup_args) as pool:
         yield from pool.map(fn, tasks, desc, progress, unit)

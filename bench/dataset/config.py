@@ -11,16 +11,16 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from renderers.frames import FrameSampling
+from renderers.frame_sampling import FrameSampling, marker_region
 from scenes.array import ArraySpec
+from scenes.branch_reach import branch_reach_error
 from scenes.lighting import lighting_names
 from scenes.motion import MotionSpec, MotionSpecError, get_protocol
 from scenes.profile import CameraProfile, load_profile
-from scenes.validation import FieldError
+from scenes.validation import MAX_SEED, FieldError
 from scenes.vegetation import (
     FOLIAGE_KINDS,
     SAMPLING_PENETRATION_MM,
-    branch_reach_error,
 )
 
 DEFAULT_FOLIAGE = ("soft", "stiff", "sparse", "dense")
@@ -43,6 +43,8 @@ APPROACH_CLEARANCE_MM = 15.0
 DEFAULT_PROFILE = "prototype"
 #: Largest exposure multiplier accepted (the study's bound: linear radiance to full scale).
 MAX_EXPOSURE = 1e6
+#: Largest whisking amplitude: 1 m each side, several times the array's own width.
+MAX_AMPLITUDE_MM = 1000.0
 
 
 def default_profile() -> CameraProfile:
@@ -115,6 +117,8 @@ class DatasetConfig:
             values = getattr(self, name)
             if not values:
                 raise DatasetConfigError(name, "needs at least one value")
+            if len(set(values)) != len(values):
+                raise DatasetConfigError(name, f"{list(values)}: a value is listed twice")
             bad = [v for v in values if v not in allowed]
             if bad:
                 raise DatasetConfigError(
@@ -122,6 +126,17 @@ class DatasetConfig:
                 )
         if not self.branches:
             raise DatasetConfigError("branches", "needs at least one configuration")
+        if len({tuple(sorted(b)) for b in self.branches}) != len(self.branches):
+            raise DatasetConfigError(
+                "branches", f"{list(self.branches)}: a configuration is listed twice"
+            )
+        a = self.amplitude_mm
+        if a is not None and not (isinstance(a, int | float) and 0 < a <= MAX_AMPLITUDE_MM):
+            raise DatasetConfigError(
+                "amplitude_mm", f"{a!r}: allowed range is (0, {MAX_AMPLITUDE_MM:g}] mm"
+            )
+        if not (isinstance(self.seed, int | np.integer) and 0 <= self.seed <= MAX_SEED):
+            raise DatasetConfigError("seed", f"{self.seed!r}: allowed range is 0..{MAX_SEED}")
         if not isinstance(self.camera, CameraProfile):
             raise DatasetConfigError("camera", f"{self.camera!r}: must be a CameraProfile")
         e = self.exposure
@@ -151,7 +166,6 @@ class DatasetConfig:
     def _check_lens(self) -> None:
         """The profile's lens must see every marker at any deflection and make even-sized
         frames (4:2:0 video)."""
-        from renderers.frames import marker_region
 
         lens = self.camera.lens
         if lens.width_px % 2 or lens.height_px % 2:

@@ -8,12 +8,12 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from bench.common.atomic import check_writable, write_json
 from bench.common.executor import run_tasks
+from bench.common.manifest import sha256
+from bench.common.resumable import finish_run, open_run
 from bench.dataset.config import DatasetConfig, DatasetConfigError, SampleSpec
-from bench.dataset.sample import run_sample, sample_done, sha256
-from bench.study.cells import init_worker
-from bench.study.run import package_versions
+from bench.dataset.sample import run_sample, sample_done
+from renderers.variant import init_worker
 
 
 @dataclass(frozen=True)
@@ -23,7 +23,7 @@ class _SampleTask:
     out_dir: Path
 
 
-def _run_task(task: _SampleTask) -> dict:
+def _run_task(task: _SampleTask, _variant: str) -> dict:
     return run_sample(task.config, task.sample, task.out_dir)
 
 
@@ -36,14 +36,15 @@ def run_dataset(
 ) -> dict:
     """Make (or finish) the dataset in ``out_dir``; return its manifest.
 
-    Samples whose ``sample.json`` lists files that verify are skipped; a folder holding samples
-    made with other settings is refused (ValueError) before anything is written.
+    Samples whose ``sample.json`` lists files that verify are skipped; a folder holding another
+    command's output or samples made with other settings is refused (DatasetConfigError on
+    ``out``) before anything is written.
     """
     out_dir = Path(out_dir)
     settings = config.settings_hash()
     samples = config.samples()
     try:
-        check_writable(out_dir)
+        run = open_run(out_dir, "dataset", config.to_json(), settings, units="*/sample.json")
         todo = [s for s in samples if not sample_done(out_dir / s.sample_id, settings)]
     except ValueError as exc:
         raise DatasetConfigError("out", str(exc)) from None
@@ -56,8 +57,8 @@ def run_dataset(
             _run_task,
             tasks,
             workers=min(workers, len(tasks)) or 1,
-            initializer=init_worker,
-            initargs=(chosen, threads if workers > 1 else None),
+            setup=init_worker,
+            setup_args=(chosen, threads if workers > 1 else None),
             desc="samples",
             unit="sample",
             progress=progress,
@@ -71,27 +72,26 @@ def run_dataset(
     stages = ("simulate_s", "render_s", "optics_s", "sensor_s", "encode_s")
     stage_s = {k: sum(r["timing_s"][k] for r in new) for k in stages}
     stage_s["other_s"] = sum(r["timing_s"]["total_s"] for r in new) - sum(stage_s.values())
-    manifest = {
-        "camera_profile": config.camera.name,
-        "config": config.to_json(),  # its "camera" is the whole profile
-        "settings_sha256": settings,
-        "versions": package_versions(),
-        "variant": chosen,
-        "samples": [r["sample_id"] for r in records],
-        "skipped": len(samples) - len(todo),
-        "files": {
-            f"{r['sample_id']}/{name}": digest
-            for r in records
-            for name, digest in {
-                **r["files"],
-                "sample.json": sha256(out_dir / r["sample_id"] / "sample.json"),
-            }.items()
-        },
-        "wall_s": wall_s,
-        "frames": sum(r["frames"] for r in records),
-        "frames_rendered": frames_new,
-        "frames_per_s": frames_new / wall_s if frames_new else None,
-        "stage_s": stage_s,
+    files = {  # every sample's files, sample.json included: what score and compare verify
+        f"{r['sample_id']}/{name}": digest
+        for r in records
+        for name, digest in {
+            **r["files"],
+            "sample.json": sha256(out_dir / r["sample_id"] / "sample.json"),
+        }.items()
     }
-    write_json(out_dir / "manifest.json", manifest)
-    return manifest
+    return finish_run(  # "config": its "camera" is the whole profile
+        run,
+        seed=config.seed,
+        variant=chosen,
+        outputs=files,
+        camera_profile=config.camera.name,
+        samples=[r["sample_id"] for r in records],
+        skipped=len(samples) - len(todo),
+        files=files,
+        wall_s=wall_s,
+        frames=sum(r["frames"] for r in records),
+        frames_rendered=frames_new,
+        frames_per_s=frames_new / wall_s if frames_new else None,
+        stage_s=stage_s,
+    )

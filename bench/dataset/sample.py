@@ -7,36 +7,40 @@ redoes one that a crash cut short.
 
 Per sample: vegetation (:mod:`scenes.vegetation`) and a protocol (:mod:`scenes.motion`) give the
 array's path; the mechanics (:mod:`scenes.mechanics`) give every whisker's deflection at every
-time sample; the frame renderer (:mod:`renderers.frames`) makes each frame's radiance and the
-camera twin (:mod:`renderers.camera_twin`, one :class:`~scenes.profile.CameraProfile`) records
-it: optics once per frame, then the sensor and stream stages; :mod:`bench.dataset.labels` makes the
+time sample; the frame recorder (:class:`renderers.frames.FrameRecorder`) renders each frame's
+radiance and records it through the camera twin (one :class:`~scenes.profile.CameraProfile`):
+optics once per frame, then the sensor and stream stages; :mod:`bench.dataset.labels` makes the
 exact labels with the profile's lens; :mod:`bench.common.video` writes the videos.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import json
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
 
 from bench.common.atomic import atomic_path, write_json
+from bench.common.manifest import sha256
 from bench.dataset.config import SAMPLE_FILES, DatasetConfig, SampleSpec
 from bench.dataset.labels import corners_of_frame, label_table
-from renderers.frames import FrameSampling
+from scenes.branch_reach import gap_of_branch
 from scenes.lighting import get_lighting
 from scenes.motion import MotionSpec
 from scenes.vegetation import (
     SAMPLING_PENETRATION_MM,
     Vegetation,
     VegetationSpec,
-    gap_of_branch,
 )
+
+if TYPE_CHECKING:
+    from renderers.frame_sampling import FrameSampling
+    from renderers.frames import FrameRecorder
 
 # -- one sample ------------------------------------------------------------------------------
 
@@ -111,76 +115,29 @@ def simulate_sample(config: DatasetConfig, sample: SampleSpec) -> SimulatedSampl
     return SimulatedSample(vegetation, motion, times, source, sub_times, angles, labels)
 
 
-class SampleFrames:
-    """Renders a simulated sample's frames and records them through the camera twin, full-size
-    uint8, one at a time."""
+def sample_recorder(
+    config: DatasetConfig,
+    sample: SampleSpec,
+    sim: SimulatedSample,
+    sampling: FrameSampling | None = None,
+) -> FrameRecorder:
+    """The frame recorder of a simulated sample (:class:`renderers.frames.FrameRecorder`): its
+    vegetation, lighting, seeds, deflections and path; ``sampling`` defaults to the config's."""
+    from renderers.frames import FrameRecorder
 
-    def __init__(
-        self,
-        config: DatasetConfig,
-        sample: SampleSpec,
-        sim: SimulatedSample,
-        sampling: FrameSampling | None = None,
-    ) -> None:
-        from renderers.frames import FrameRenderer
-
-        seeds = sample.seeds(config.seed)
-        self.config, self.sim, self.profile = config, sim, config.camera
-        lighting = get_lighting(sample.lighting)
-        self.renderer = FrameRenderer(
-            self.profile.lens,
-            config.array,
-            [(p.name, p.mesh, p.albedo_rgb) for p in sim.vegetation.parts],
-            lighting,
-            sampling or config.sampling,
-            seeds["render"],
-            angles_rad=sim.angles_rad,
-            block_px=self.profile.stream.block_px,
-        )
-        self.exposure = config.exposure * lighting.exposure
-        self.rng_band, self.rng_rest = (
-            np.random.default_rng(s) for s in np.random.SeedSequence(seeds["noise"]).spawn(2)
-        )
-        self.render_s = self.optics_s = self.sensor_s = 0.0
-
-    def radiance(self, f: int) -> np.ndarray:
-        """Clean linear RGB radiance of frame ``f`` over the renderer's region."""
-        k = self.renderer.sampling.subframes
-        offsets = self.sim.motion.offsets_at(self.sim.sub_times_s[f])
-        return self.renderer.render(self.sim.angles_rad[f, :k], offsets)
-
-    def _record(self, irradiance: np.ndarray, window, rng: np.random.Generator) -> np.ndarray:
-        from renderers.camera_twin import sensor_images
-
-        origin = (window.x0, window.y0)
-        return sensor_images(irradiance, self.profile, rng, 1, origin, self.exposure)[0]
-
-    def frame(self, f: int) -> np.ndarray:
-        """The camera's 8-bit grey frame ``f`` (H, W): black outside the rendered region.
-
-        The optics run once over the region; the band's sensor noise comes from its own
-        stream, so a band frame and a full frame of the same sample hold identical pixels
-        wherever their optical images agree (the band starts on the stream's block grid).
-        """
-        from renderers.camera_twin import optical_image
-
-        t0 = time.perf_counter()
-        radiance = self.radiance(f)
-        t1 = time.perf_counter()
-        lens, region, band = self.profile.lens, self.renderer.region, self.renderer.band
-        irradiance = optical_image(radiance, self.profile, (region.x0, region.y0))
-        t2 = time.perf_counter()
-        image = np.zeros((lens.height_px, lens.width_px), np.uint8)
-        if region != band:
-            image[region.y0 : region.y0 + region.height, region.x0 : region.x0 + region.width] = (
-                self._record(irradiance, region, self.rng_rest)
-            )
-        rows = slice(band.y0 - region.y0, band.y0 - region.y0 + band.height)
-        image[band.y0 : band.y0 + band.height] = self._record(irradiance[rows], band, self.rng_band)
-        self.render_s += t1 - t0
-        self.optics_s += t2 - t1
-        self.sensor_s += time.perf_counter() - t2
-        return image
+    seeds = sample.seeds(config.seed)
+    return FrameRecorder(
+        config.camera,
+        config.array,
+        [(p.name, p.mesh, p.albedo_rgb) for p in sim.vegetation.parts],
+        get_lighting(sample.lighting),
+        sampling or config.sampling,
+        seeds["render"],
+        seeds["noise"],
+        config.exposure,
+        sim.angles_rad,
+        sim.motion.offsets_at(sim.sub_times_s),
+    )
 
 
 def run_sample(config: DatasetConfig, sample: SampleSpec, out_dir: Path) -> dict:
@@ -193,7 +150,7 @@ def run_sample(config: DatasetConfig, sample: SampleSpec, out_dir: Path) -> dict
     t_sim = time.perf_counter()
 
     # --- Frames: render, record, encode
-    frames = SampleFrames(config, sample, sim)
+    frames = sample_recorder(config, sample, sim)
     n_frames = len(sim.times_s)
     t_frames = time.perf_counter()
     n_written = write_video(
@@ -255,14 +212,6 @@ def run_sample(config: DatasetConfig, sample: SampleSpec, out_dir: Path) -> dict
     }
     write_json(folder / "sample.json", record)
     return record
-
-
-def sha256(path: Path) -> str:
-    digest = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
 
 
 def sample_done(folder: Path, settings_sha256: str) -> bool:

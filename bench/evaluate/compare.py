@@ -3,7 +3,7 @@
 Per variant, measured in the same run on this machine:
 
 * **speed**: frames/s of detection and pose on full 2592 x 1944 frames with 13 markers, one
-  OpenCV thread (:mod:`bench.benchmarks.pipeline`, the same frames for every variant);
+  OpenCV thread (:mod:`bench.evaluate.speed`, the same frames for every variant);
 * **accuracy on the dataset**: :func:`bench.score.score_dataset` on every sample (branch outcome
   with the none-twin threshold, marker recall, deflection, corner and pose errors);
 * **failure boundaries**: detection recall and pose error against angular position, marker tilt,
@@ -30,15 +30,22 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
-from bench.benchmarks.pipeline import (  # noqa: E402
+from bench.common.atomic import atomic_path, write_bytes  # noqa: E402
+from bench.common.manifest import (  # noqa: E402
+    RunClock,
+    build_manifest,
+    claim,
+    hash_files,
+    write_manifest,
+)
+from bench.evaluate.speed import (  # noqa: E402
     SPEED_SAMPLE,
     full_frames,
     one_opencv_thread,
     time_pipeline,
 )
-from bench.common.atomic import atomic_path, write_bytes  # noqa: E402
-from bench.study.cells import init_worker  # noqa: E402
 from pipeline.presets import PipelineConfig  # noqa: E402
+from renderers.variant import init_worker  # noqa: E402
 
 #: Accuracy measures on the dataset: column, label, whether higher is better.
 ACCURACY = (
@@ -114,17 +121,26 @@ def run_compare(
     """Measure every variant (speed, dataset accuracy, sweeps) and write the report.
 
     Speed: the best of repeats over ``speed_frames`` full frames, run for ``speed_seconds``.
+    Before any work the report folder and every variant's score folder are claimed (ValueError
+    if another command's) and the dataset is verified, once (DatasetIntegrityError naming the
+    file); ``manifest.json`` is written last.
     """
-    from bench.evaluate.score import sample_records, score_dataset
+    from bench.dataset.verify import verify_dataset
+    from bench.evaluate.score import score_dataset
     from bench.evaluate.sweep_config import SweepConfig
-    from bench.evaluate.sweep_report import boundaries, plot_sweeps
+    from bench.evaluate.sweep_report import boundaries, write_sweeps
     from bench.evaluate.sweeps import run_sweeps
 
     dataset, out_dir = Path(dataset), Path(out_dir)
+    sweep = sweep or SweepConfig()
     names = [p.name for p in pipelines]
     if len(set(names)) != len(names) or not names:
         raise ValueError(f"--pipelines: need distinct names, got {names}")
-    sample_records(dataset)  # a folder without samples fails now, not after the speed frames
+    clock = RunClock()
+    claim(out_dir, "compare")
+    for pipeline in pipelines:
+        claim(dataset / "scores" / pipeline.folder_name, "score")
+    verified = verify_dataset(dataset)  # every file hashed once, before the speed frames
     chosen = init_worker(variant)
     t_start = time.perf_counter()
     with one_opencv_thread():
@@ -132,20 +148,22 @@ def run_compare(
         rows, tables = [], {}
         for pipeline in pipelines:
             fps, _ = time_pipeline(images, SPEED_SAMPLE, pipeline, speed_seconds)
-            table = score_dataset(dataset, pipeline, dataset / "scores" / pipeline.folder_name)
+            scores = dataset / "scores" / pipeline.folder_name
+            table = score_dataset(dataset, pipeline, scores, verified)
             tables[pipeline.name] = table
             rows.append({**summarize(pipeline.name, table), "fps": fps})
         del images
     summary = pd.DataFrame(rows)
-    sweeps = run_sweeps(pipelines, sweep or SweepConfig(), variant=variant)
+    sweeps = run_sweeps(pipelines, sweep, variant=variant)
     edges = boundaries(sweeps)
 
     out_dir.mkdir(parents=True, exist_ok=True)
-    for name, frame in (("summary", summary), ("sweeps", sweeps), ("boundaries", edges)):
+    written = write_sweeps(out_dir, sweeps, sweep, pipelines)
+    for name, frame in (("summary", summary), ("boundaries", edges)):
         with atomic_path(out_dir / f"{name}.csv") as tmp:
             frame.to_csv(tmp, index=False)
+        written.append(out_dir / f"{name}.csv")
     plot_pareto(summary, out_dir / "pareto.png")
-    plot_sweeps(sweeps, out_dir / "sweeps.png")
     grids = _copy_grids(dataset, pipelines, out_dir)
     meta = {
         "dataset": str(dataset),
@@ -158,6 +176,26 @@ def run_compare(
         "speed_frames": speed_frames,
     }
     write_bytes(out_dir / "report.md", render_report(summary, tables, edges, grids, meta).encode())
+    written += [out_dir / "pareto.png", out_dir / "report.md"]
+    written += [out_dir / "grids" / n for names in grids.values() for n in names]
+    config = {
+        "dataset": str(dataset),
+        "pipelines": [p.to_json() for p in pipelines],
+        "sweep": sweep.to_json(),  # also in sweep_config.json, beside the sweep table
+        "speed_frames": speed_frames,
+        "speed_seconds": speed_seconds,
+    }
+    record = build_manifest(
+        "compare",
+        clock,
+        config,
+        variant=chosen,
+        inputs=verified.inputs(),
+        outputs=hash_files(written, out_dir),
+        cpu_count=meta["cpu_count"],
+        machine=meta["machine"],
+    )
+    write_manifest(out_dir, record)
     return summary
 
 

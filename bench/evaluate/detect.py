@@ -8,6 +8,7 @@ is beside it).
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import time
@@ -18,13 +19,23 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+import pandas as pd  # noqa: E402
 
 from bench.common.atomic import atomic_path, write_json  # noqa: E402
+from bench.common.manifest import (  # noqa: E402
+    RunClock,
+    build_manifest,
+    claim,
+    hash_files,
+    sha256,
+    write_manifest,
+)
 from pipeline.branches import BranchEstimate, estimate_branches, online_threshold  # noqa: E402
 from pipeline.presets import PipelineConfig  # noqa: E402
 from pipeline.track import MarkerSet, pose_arrays, track  # noqa: E402
 from scenes.array import ArraySpec  # noqa: E402
 from scenes.camera import FisheyeCamera  # noqa: E402
+from scenes.tables import DETECTIONS, ordered  # noqa: E402
 
 
 def estimate(
@@ -63,10 +74,19 @@ def run_detect(
     out_dir: Path,
     threshold_mm: float | None = None,
     array: ArraySpec | None = None,
+    video_sha256: str | None = None,
 ) -> dict:
-    """Detect, estimate and write the outputs; return the branches.json content."""
+    """Detect, estimate and write the outputs and ``manifest.json``; return branches.json's content.
+
+    ``out_dir`` is claimed before any work (ValueError if another command's). The manifest
+    records the video's SHA-256: ``video_sha256`` when the caller has just verified it (score),
+    else hashed here.
+    """
     from bench.common.video import read_video
 
+    out_dir = Path(out_dir)
+    clock = RunClock()
+    claim(out_dir, "detect")
     array = array or ArraySpec()
     markers = MarkerSet(array.marker_ids, array.marker_size_mm)
     t0 = time.perf_counter()
@@ -75,11 +95,10 @@ def run_detect(
     )
     track_s = time.perf_counter() - t0
     est, source = estimate(result.detections, result.frames, array.n_whiskers, config, threshold_mm)
-    table = result.detections.copy()
-    f, w = table["frame"].to_numpy(), table["whisker"].to_numpy()
-    table["deflection_mm"] = est.deflection[f, w]
-    table["contact"] = est.contact[f, w]
-    out_dir = Path(out_dir)
+    tracked = result.detections
+    f, w = tracked["frame"].to_numpy(), tracked["whisker"].to_numpy()
+    estimated = {"deflection_mm": est.deflection[f, w], "contact": est.contact[f, w]}
+    table = pd.DataFrame(ordered(DETECTIONS, {**tracked.to_dict("series"), **estimated}))
     with atomic_path(out_dir / "detections.parquet") as tmp:
         table.to_parquet(tmp, index=False)
     truth = _truth_gaps(video)
@@ -100,14 +119,33 @@ def run_detect(
     }
     write_json(out_dir / "branches.json", record)
     plot_estimate(est, out_dir / "branches.png", truth, video.parent.name)
+    inputs = {str(video): video_sha256 or sha256(video)}
+    if truth is not None:
+        inputs[str(video.parent / "sample.json")] = sha256(video.parent / "sample.json")
+    config_record = {
+        "pipeline": config.to_json(),
+        "camera": dataclasses.asdict(camera),
+        "array": array.to_json(),
+        "threshold_mm": threshold_mm,
+    }
+    written = [out_dir / n for n in ("detections.parquet", "branches.json", "branches.png")]
+    manifest = build_manifest(
+        "detect", clock, config_record, inputs=inputs, outputs=hash_files(written, out_dir)
+    )
+    write_manifest(out_dir, manifest)
     return record
 
 
 def _truth_gaps(video: Path) -> list[list[int]] | None:
+    """The true gaps from the ``sample.json`` beside the video; None without one."""
     sample = video.parent / "sample.json"
     if not sample.exists():
         return None
-    return json.loads(sample.read_text()).get("branch_gaps")
+    try:
+        record = json.loads(sample.read_text())
+    except ValueError as exc:
+        raise ValueError(f"{sample}: not readable JSON ({exc})") from None
+    return record.get("branch_gaps") if isinstance(record, dict) else None
 
 
 def plot_estimate(

@@ -24,9 +24,25 @@ import pandas as pd  # noqa: E402
 from tqdm import tqdm  # noqa: E402
 
 from bench.common.atomic import atomic_path  # noqa: E402
+from bench.common.manifest import (  # noqa: E402
+    RunClock,
+    build_manifest,
+    claim,
+    hash_files,
+    write_manifest,
+)
+from bench.dataset.verify import VerifiedDataset, verify_dataset  # noqa: E402
 from pipeline.presets import PipelineConfig  # noqa: E402
-
-CORNERS = [(f"c{k}_x_px", f"c{k}_y_px") for k in range(4)]
+from scenes.tables import (  # noqa: E402
+    DETECTIONS,
+    JOIN_KEY,
+    LABELS,
+    TRUTH_SUFFIX,
+    check_table,
+    corners_of,
+    rotations_of,
+    translations_of,
+)
 
 
 def branch_outcome(
@@ -50,24 +66,18 @@ def branch_outcome(
 
 def score_markers(detections: pd.DataFrame, labels: pd.DataFrame, foreign_ids: int = 0) -> dict:
     """Marker-level accuracy of one sample (see the module docstring)."""
-    joined = detections.merge(labels, on=["frame", "marker_id"], suffixes=("", "_gt"))
+    joined = detections.merge(labels, on=list(JOIN_KEY), suffixes=("", TRUTH_SUFFIX))
     visible = labels["visible"].to_numpy(bool)
     matched = joined[joined["visible"]]
-    corner_err = np.mean(
-        [
-            np.hypot(matched[x] - matched[f"{x}_gt"], matched[y] - matched[f"{y}_gt"])
-            for x, y in CORNERS
-        ],
-        axis=0,
-    )
-    R = matched[[f"R_CM_{i}{j}" for i in range(3) for j in range(3)]].to_numpy().reshape(-1, 3, 3)
-    R_gt = matched[[f"R_CM_{i}{j}_gt" for i in range(3) for j in range(3)]].to_numpy()
-    cos = (np.einsum("nij,nij->n", R, R_gt.reshape(-1, 3, 3)) - 1) / 2
+    corner_err = np.linalg.norm(
+        corners_of(matched) - corners_of(matched, TRUTH_SUFFIX), axis=-1
+    ).mean(axis=1)
+    cos = (
+        np.einsum("nij,nij->n", rotations_of(matched), rotations_of(matched, TRUTH_SUFFIX)) - 1
+    ) / 2
     rot_err = np.degrees(np.arccos(np.clip(cos, -1, 1)))
     trans_err = np.linalg.norm(
-        matched[[f"t_CM_{a}_mm" for a in "xyz"]].to_numpy()
-        - matched[[f"t_CM_{a}_mm_gt" for a in "xyz"]].to_numpy(),
-        axis=1,
+        translations_of(matched) - translations_of(matched, TRUTH_SUFFIX), axis=1
     )
     out = {
         "markers_visible": int(visible.sum()),
@@ -80,9 +90,9 @@ def score_markers(detections: pd.DataFrame, labels: pd.DataFrame, foreign_ids: i
     }
     if "deflection_mm" in detections:  # a tracking-only table has no deflection to score
         out["deflection_err_mm"] = _median(
-            np.abs(matched["deflection_mm"] - matched["deflection_mm_gt"])
+            np.abs(matched["deflection_mm"] - matched["deflection_mm" + TRUTH_SUFFIX])
         )
-        out.update(_precision_recall(matched["contact"], matched["contact_gt"]))
+        out.update(_precision_recall(matched["contact"], matched["contact" + TRUTH_SUFFIX]))
     return out
 
 
@@ -104,22 +114,21 @@ def _precision_recall(predicted: pd.Series, truth: pd.Series) -> dict:
 # -- a whole dataset ------------------------------------------------------------------------
 
 
-def sample_records(dataset: Path) -> list[dict]:
-    """Every sample's ``sample.json``, in id order; ValueError if there are none."""
-    records = [json.loads(p.read_text()) for p in sorted(Path(dataset).glob("*/sample.json"))]
-    if not records:
-        raise ValueError(f"{dataset}: no samples (no */sample.json)")
-    return records
-
-
-def _none_twin(record: dict) -> str:
+def _none_twin(record: dict) -> str | None:
     """The id of the no-branch sample of the same foliage, distance, protocol and lighting."""
     parts = record["sample_id"].split("-")
+    if len(parts) < 3:  # not an id the dataset command makes: no twin
+        return None
     parts[2] = "none"
     return "-".join(parts)
 
 
-def score_dataset(dataset: Path, config: PipelineConfig, out_dir: Path) -> pd.DataFrame:
+def score_dataset(
+    dataset: Path,
+    config: PipelineConfig,
+    out_dir: Path,
+    verified: VerifiedDataset | None = None,
+) -> pd.DataFrame:
     """Run ``config`` on every sample and score it; write ``samples.csv`` and the grids.
 
     A sample the pipeline refuses (no no-contact frames at its start) gets the outcome
@@ -127,6 +136,10 @@ def score_dataset(dataset: Path, config: PipelineConfig, out_dir: Path) -> pd.Da
     highest deflection that the same pipeline measures on its no-branch twin (SPEC 3 step 4);
     without a twin, or for an ``online`` pipeline, it is inferred from the sample itself
     (column ``threshold_source``).
+
+    Before any work ``out_dir`` is claimed (ValueError if another command's) and every file of
+    every sample is checked against its recorded SHA-256 (DatasetIntegrityError naming the
+    file), unless ``verified`` says it was, in this command; ``manifest.json`` is written last.
     """
     from bench.common.video import video_info
     from bench.evaluate.detect import run_detect
@@ -134,13 +147,17 @@ def score_dataset(dataset: Path, config: PipelineConfig, out_dir: Path) -> pd.Da
     from scenes.profile import load_profile
 
     dataset, out_dir = Path(dataset), Path(out_dir)
-    records = {r["sample_id"]: r for r in sample_records(dataset)}
+    clock = RunClock()
+    claim(out_dir, "score")
+    verified = verified or verify_dataset(dataset)
+    records = verified.records
     order = sorted(records, key=lambda s: records[s]["branches_mm"] != [])  # twins first
     thresholds: dict[str, float] = {}
     rows = []
     for sample_id in tqdm(order, desc=f"score {config.name}", unit="sample"):
         record, folder = records[sample_id], dataset / sample_id
         labels = pd.read_parquet(folder / "labels.parquet")
+        check_table(labels, LABELS, folder / "labels.parquet")
         if video_info(folder / "video.mp4").frame_count != labels["frame"].nunique():
             raise ValueError(f"{sample_id}: the labels do not match the video's frame count")
         camera = load_profile(folder / "camera.json").lens  # a profile, or an old bare camera
@@ -158,12 +175,18 @@ def score_dataset(dataset: Path, config: PipelineConfig, out_dir: Path) -> pd.Da
         }
         try:
             result = run_detect(
-                folder / "video.mp4", camera, config, out_dir / sample_id, threshold
+                folder / "video.mp4",
+                camera,
+                config,
+                out_dir / sample_id,
+                threshold,
+                video_sha256=verified.digests[f"{sample_id}/video.mp4"],
             )
         except NoBaselineError as exc:  # flagged and reported, never scored as an answer
             rows.append({**common, "outcome": "refused", "refused_reason": str(exc)})
             continue
         detections = pd.read_parquet(out_dir / sample_id / "detections.parquet")
+        check_table(detections, DETECTIONS, out_dir / sample_id / "detections.parquet")
         if not record["branches_mm"]:
             thresholds[sample_id] = foliage_threshold(detections["deflection_mm"].to_numpy())
         estimated = [b["gap"] for b in result["branches"]]
@@ -190,6 +213,15 @@ def score_dataset(dataset: Path, config: PipelineConfig, out_dir: Path) -> pd.Da
             out_dir / f"grid-{protocol}-{lighting}.png",
             f"{config.name}: {protocol}, {lighting}",
         )
+    written = [out_dir / "samples.csv", *out_dir.glob("grid-*.png")]
+    record = build_manifest(
+        "score",
+        clock,
+        {"pipeline": config.to_json(), "dataset": str(dataset)},
+        inputs=verified.inputs(),
+        outputs=hash_files(written, out_dir),
+    )
+    write_manifest(out_dir, record)
     return table
 
 

@@ -10,16 +10,13 @@ import math
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 
-import matplotlib
+import numpy as np
 
-matplotlib.use("Agg")
-import numpy as np  # noqa: E402
-
-from scenes.lighting import get_lighting  # noqa: E402
-from scenes.marker import MarkerSpec, check_dictionary  # noqa: E402
-from scenes.profile import CameraProfile, load_profile  # noqa: E402
-from scenes.study import MAX_PHI_DEG  # noqa: E402
-from scenes.validation import FieldError  # noqa: E402
+from scenes.lighting import get_lighting
+from scenes.marker import MarkerSpec, check_dictionary
+from scenes.profile import CameraProfile, load_profile
+from scenes.study import MAX_PHI_DEG
+from scenes.validation import FieldError
 
 AXES = ("alpha_deg", "phi_deg", "lighting", "blur_px", "read_noise_e")
 NUMERIC_AXES = ("alpha_deg", "phi_deg", "blur_px", "read_noise_e")

@@ -1,19 +1,26 @@
-"""Reading a sweep table: where recall falls below 95 %, whether the seeds agree, and the plot."""
+"""Reading a sweep table (where recall falls below 95 %, do the seeds agree) and writing it."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import matplotlib
 
-from bench.evaluate.sweep_config import AXES, NUMERIC_AXES, RECALL_OK  # noqa: E402
+from bench.evaluate.sweep_config import (  # noqa: E402
+    AXES,
+    NUMERIC_AXES,
+    RECALL_OK,
+    SweepConfig,
+)
+from pipeline.presets import PipelineConfig  # noqa: E402
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
-from bench.common.atomic import atomic_path  # noqa: E402
+from bench.common.atomic import atomic_path, write_json  # noqa: E402
 
 
 def boundaries(table: pd.DataFrame, threshold: float = RECALL_OK) -> pd.DataFrame:
@@ -160,3 +167,20 @@ def plot_sweeps(table: pd.DataFrame, path: Path) -> None:
     with atomic_path(Path(path)) as tmp:
         fig.savefig(tmp, format="png")
     plt.close(fig)
+
+
+def write_sweeps(
+    out_dir: Path, table: pd.DataFrame, config: SweepConfig, pipelines: list[PipelineConfig]
+) -> list[Path]:
+    """Write the sweep table, its config (``sweep_config.json``: the sweep and the pipelines as
+    given; the sweep's ``dictionary`` replaces each pipeline's) and its plot; return the paths.
+
+    The config is a file beside the table, not a table attribute: CSV keeps no attributes.
+    """
+    out_dir = Path(out_dir)
+    with atomic_path(out_dir / "sweeps.csv") as tmp:
+        table.to_csv(tmp, index=False)
+    record = {"config": config.to_json(), "pipelines": [p.to_json() for p in pipelines]}
+    write_json(out_dir / "sweep_config.json", json.loads(json.dumps(record, default=str)))
+    plot_sweeps(table, out_dir / "sweeps.png")
+    return [out_dir / n for n in ("sweeps.csv", "sweep_config.json", "sweeps.png")]

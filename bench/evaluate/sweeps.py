@@ -12,7 +12,7 @@ From a base point (the array's 13.2 mm marker 200 mm away at alpha 40 deg, tilte
     the lighting presets (categorical);
 ``blur_px``
     motion blur: the marker moves ``L`` px horizontally in the image during the exposure
-    (:func:`motion_blur`);
+    (:func:`renderers.motion_blur.motion_blur`);
 ``read_noise_e``
     sensor noise, as the rms read noise (electrons) of the camera profile's well.
 
@@ -20,15 +20,18 @@ Images come from the camera twin (``camera``, a :class:`scenes.profile.CameraPro
 ``prototype``): the motion blur acts on the clean radiance, then the profile's optics, sensor
 and stream stages run, the read noise replaced by the point's.
 
-Each distinct crop is rendered once per seed (:func:`clean_render`, composed from
-:mod:`bench.study.cells`'s renderer and seeds), ``images`` camera images are drawn from it
-and every pipeline gets the same images. A seed fixes the render's jitter and the noise through
-:meth:`bench.detectability.Cell.seed_sequence`, so a seed's images at a point do not depend on
-the rest of the grid; the levels of the blur and the noise axes share one render and one noise
-draw per seed, so that only the level differs between them.
+Each distinct crop is rendered once per seed (:func:`clean_render`: the study's
+:func:`~bench.study.cells.render_cell` with one :class:`~renderers.marker_renderer.MarkerRenderer`
+for the whole sweep), ``images`` camera images are drawn from it and every pipeline gets the
+same images, scored as the study scores them (:mod:`bench.common.marker_score`). A seed fixes
+the noise and the canopy's shadows through :meth:`bench.study.config.Cell.seed_sequence` (the
+render's jitter is :data:`RENDER_SEED`'s for every seed), so a seed's images at a point do not
+depend on the rest of the grid; the levels of the blur and the noise axes share one render and
+one noise draw per seed, so that only the level differs between them.
 
-:func:`run_sweeps` gives one row per (axis, level, seed, pipeline), :func:`boundaries` reads off
-where recall falls below 95 % and whether the seeds agree, :func:`plot_sweeps` draws it all.
+:func:`run_sweeps` gives one row per (axis, level, seed, pipeline);
+:func:`bench.evaluate.sweep_report.boundaries` reads off where recall falls below 95 % and
+whether the seeds agree, :func:`bench.evaluate.sweep_report.plot_sweeps` draws it all.
 
 The default levels were set after a first run with the presets (5 seeds x 20 images):
 
@@ -54,75 +57,49 @@ from __future__ import annotations
 
 import copy
 import dataclasses
-import json
 
-import matplotlib
+import numpy as np
+import pandas as pd
+from tqdm import tqdm
 
-from bench.evaluate.sweep_config import NUMERIC_AXES, SweepConfig, SweepPoint  # noqa: E402
-from renderers.motion_blur import motion_blur  # noqa: E402
+from bench.common.marker_score import MarkerTruth, find_marker, score_corners
+from bench.evaluate.sweep_config import NUMERIC_AXES, SweepConfig, SweepPoint
+from bench.study.cells import CellRender, camera_images, render_cell
+from bench.study.config import Cell
+from pipeline.presets import PipelineConfig
+from renderers.camera_twin import optical_image
+from renderers.marker_renderer import MarkerRenderer
+from renderers.motion_blur import motion_blur
+from renderers.variant import init_worker
+from scenes.camera import FisheyeCamera
+from scenes.lighting import get_lighting
 
-matplotlib.use("Agg")
-import numpy as np  # noqa: E402
-import pandas as pd  # noqa: E402
-from tqdm import tqdm  # noqa: E402
-
-from bench.study.cells import (  # noqa: E402
-    camera_images,
-    clean_radiance,
-    init_worker,
-    render_cell,
-)
-from bench.study.config import Cell, StudyConfig  # noqa: E402
-from pipeline.detect import detect_markers  # noqa: E402
-from pipeline.pose import estimate_pose  # noqa: E402
-from pipeline.presets import PipelineConfig  # noqa: E402
-from renderers.camera_twin import optical_image  # noqa: E402
-from scenes.conventions import (  # noqa: E402
-    marker_corners_marker,
-    rotation_angle_deg,
-    transform_points,
-)
+#: The run seed of every sweep render's jitter: each seed's crop is rendered with seed 0's
+#: jitter (as the sweeps always have); a sweep seed draws the noise and the canopy's shadows.
+RENDER_SEED = 0
 
 # --- Rendering --------------------------------------------------------------------------------
 
 
-def _study(config: SweepConfig) -> StudyConfig:
-    """The detectability study's config for the sweep's marker: its renderer cache and seeds."""
-    return StudyConfig(
-        sizes_mm=(config.size_mm,),
-        alphas_deg=(config.base_alpha_deg,),
-        phis_deg=(config.base_phi_deg,),
-        images=config.images,
-        distance_mm=config.distance_mm,
-        lightings=(config.base_lighting,),
-        dictionary=config.dictionary,
-        marker_id=config.marker_id,
-        spp=config.spp,
-        camera=config.camera,
-    )
-
-
-def clean_render(config: SweepConfig, point: SweepPoint, seed: int) -> dict:
+def clean_render(
+    config: SweepConfig, renderer: MarkerRenderer, point: SweepPoint, seed: int
+) -> tuple[CellRender, np.ndarray, np.random.Generator]:
     """The clean linear radiance of one point's crop, before any camera stage.
 
-    The study's pose, crop (with ``point.margin_px``), renderer and seeds
-    (:func:`bench.detectability.render_cell`); a sweep needs the radiance itself because motion
-    blur acts on it before the optics. Returns ``window``, ``radiance`` ((H, W, 3), or
-    (N, H, W, 3) under a canopy, one shadow position per image), ``rng`` (the noise generator,
-    already advanced past the canopy draws: copy it for each set of images) and
-    ``T_cam_marker``.
+    The study's pose, crop (with ``point.margin_px``) and render
+    (:func:`bench.study.cells.render_cell`); a sweep needs the radiance itself because motion
+    blur acts on it before the optics. Returns the render, its radiance ((H, W, 3), or
+    (N, H, W, 3) under a canopy, one shadow position per image) and the noise generator,
+    already advanced past the canopy draws: copy it for each set of images.
     """
-    study = _study(config)
     cell = Cell(point.lighting, config.size_mm, point.alpha_deg, point.phi_deg)
-    render = render_cell(study, cell, margin_px=point.margin_px)
+    grid_px = config.camera.crop_grid_px
+    render = render_cell(
+        renderer, cell, RENDER_SEED, config.distance_mm, grid_px, margin_px=point.margin_px
+    )
     rng = np.random.default_rng(cell.seed_sequence(seed).generate_state(2)[1])
-    radiance = clean_radiance(study, render, point.lighting, config.images, rng)
-    return {
-        "window": render.window,
-        "radiance": radiance,
-        "rng": rng,
-        "T_cam_marker": render.T_cam_marker,
-    }
+    radiance = renderer.radiance(point.lighting, render.rendered, config.images, rng)
+    return render, radiance, rng
 
 
 # --- Scoring ----------------------------------------------------------------------------------
@@ -131,40 +108,31 @@ def clean_render(config: SweepConfig, point: SweepPoint, seed: int) -> dict:
 def score_images(
     pipeline: PipelineConfig,
     images: np.ndarray,
-    offset_px: tuple[int, int],
-    T_gt: np.ndarray,
-    config: SweepConfig,
+    origin_px: tuple[int, int],
+    truth: MarkerTruth,
+    lens: FisheyeCamera,
 ) -> dict:
     """Detect and pose the marker in each image; the summary row of one pipeline.
 
-    ``images``: (N, H, W) uint8 crops whose top-left pixel is ``offset_px`` in the full frame.
-    Ground truth and errors as in :mod:`bench.study.cells`: an image's corner error is the mean
-    over the 4 corners of the distance (px) to the projected true corner; medians are over the
-    images where the right id was found (pose errors: where the pose could also be solved).
+    ``images``: (N, H, W) uint8 crops whose top-left pixel is ``origin_px`` in the full frame.
+    Errors as in the study (:mod:`bench.common.marker_score`); medians are over the images
+    where the right id was found (pose errors: where the pose could also be solved).
     """
-    camera = config.camera.lens
-    gt_px = camera.project(transform_points(T_gt, marker_corners_marker(config.size_mm)))
     hits = false_ids = pose_failures = 0
     corner_err, rot_err, trans_err = [], [], []
     for image in images:
-        detections = detect_markers(image, pipeline.detector, offset_px, camera=camera)
-        match = [d for d in detections if d.marker_id == config.marker_id]
-        false_ids += len(detections) - len(match)
+        n_detections, match = find_marker(image, pipeline.detector, origin_px, truth, lens)
+        false_ids += n_detections - len(match)
         if not match:
             continue
         hits += 1
-        corners = match[0].corners_px
-        corner_err.append(float(np.linalg.norm(corners - gt_px, axis=1).mean()))
-        try:
-            pose = estimate_pose(corners, config.size_mm, camera, pipeline.pose_method)
-        except ValueError:
+        errors, posed = score_corners(match[0], truth, lens, pipeline.pose_method)
+        corner_err.append(errors["corner_err_px"])
+        if not posed:
             pose_failures += 1
             continue
-        if not np.isfinite(pose.T_cam_marker).all():  # IPPE can return NaN without raising
-            pose_failures += 1
-            continue
-        rot_err.append(rotation_angle_deg(pose.T_cam_marker[:3, :3], T_gt[:3, :3]))
-        trans_err.append(float(np.linalg.norm(pose.T_cam_marker[:3, 3] - T_gt[:3, 3])))
+        rot_err.append(errors["rot_err_deg"])
+        trans_err.append(errors["trans_err_mm"])
 
     def median(values: list[float]) -> float:
         return float(np.median(values)) if values else float("nan")
@@ -194,8 +162,8 @@ def run_sweeps(
     (detections of any other id, summed over the images), ``corner_err_px``, ``rot_err_deg``,
     ``trans_err_mm`` (medians, :func:`score_images`) and ``pose_failures`` (right id found but
     no pose: :func:`pipeline.pose.estimate_pose` raised, e.g. ``pose_method="fisheye"`` at or
-    past 90 deg, or returned a non-finite pose). ``table.attrs["sweep_config"]``
-    holds the config and pipelines as JSON.
+    past 90 deg, or returned a non-finite pose). The config goes to a file beside the table
+    (:func:`bench.evaluate.sweep_report.write_sweeps`).
 
     Each distinct crop is rendered once per seed (points sharing a render: the blur and noise
     levels, and the base point met on several axes) and every pipeline sees the same images.
@@ -213,6 +181,8 @@ def run_sweeps(
         for p in pipelines
     ]
     init_worker(variant)
+    lens = config.camera.lens
+    renderer = MarkerRenderer(lens, config.dictionary, config.marker_id, config.spp)
 
     points = config.points()
     point_index = {p: i for i, p in enumerate(points)}
@@ -221,34 +191,28 @@ def run_sweeps(
         groups.setdefault(point.render_key, []).append(point)
     jobs = [(seed, points) for seed in range(config.seeds) for points in groups.values()]
 
-    study = _study(config)
     rows = []
     for seed, group in tqdm(jobs, desc="sweep renders", unit="render", disable=not progress):
-        clean = clean_render(config, group[0], seed)
-        window = clean["window"]
-        origin = (window.x0, window.y0)
+        render, radiance, rng = clean_render(config, renderer, group[0], seed)
+        origin = (render.window.x0, render.window.y0)
+        truth = MarkerTruth.of(lens, config.marker_id, config.size_mm, render.T_cam_marker)
         for point in group:
             profile = dataclasses.replace(
                 config.camera,
                 sensor=dataclasses.replace(config.camera.sensor, read_noise_e=point.read_noise_e),
             )
-            irradiance = optical_image(
-                motion_blur(clean["radiance"], point.blur_px), profile, origin
-            )
+            irradiance = optical_image(motion_blur(radiance, point.blur_px), profile, origin)
             images = camera_images(
-                study,
                 profile,
-                point.lighting,
                 irradiance,
                 origin,
                 config.images,
-                copy.deepcopy(clean["rng"]),  # the same noise draw for every level sharing it
+                copy.deepcopy(rng),  # the same noise draw for every level sharing it
+                get_lighting(point.lighting).exposure,
             )
             numeric = point.axis in NUMERIC_AXES
             for pipeline in pipelines:
-                row = score_images(
-                    pipeline, images, (window.x0, window.y0), clean["T_cam_marker"], config
-                )
+                row = score_images(pipeline, images, origin, truth, lens)
                 rows.append(
                     {
                         "point": point_index[point],
@@ -265,7 +229,4 @@ def run_sweeps(
     table["pipeline_index"] = table["pipeline"].map({n: i for i, n in enumerate(names)})
     table = table.sort_values(["point", "pipeline_index", "seed"], kind="stable")
     table = table.drop(columns=["point", "pipeline_index"]).reset_index(drop=True)
-    table.attrs["sweep_config"] = json.dumps(
-        {"config": config.to_json(), "pipelines": [p.to_json() for p in pipelines]}, default=str
-    )
     return table

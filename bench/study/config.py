@@ -18,7 +18,7 @@ from scenes.lighting import get_lighting
 from scenes.marker import MarkerSpec, check_dictionary
 from scenes.profile import CameraProfile, ProfileError, load_profile
 from scenes.study import MAX_PHI_DEG
-from scenes.validation import FieldError
+from scenes.validation import MAX_SEED, FieldError
 
 DEFAULT_SIZES_MM = (8.8, 11.0, 13.2, 17.6)
 DEFAULT_ALPHAS_DEG = (0.0, 20.0, 40.0, 60.0, 70.0, 80.0, 85.0, 90.0)
@@ -33,6 +33,8 @@ IMAGE_STEPS = (10, 30, 80, 160, 240, 400, 800)
 #: (near-threshold cells, up to the cap) serve its detection rate, and 80 pose errors per cell
 #: already give its median, 95th percentile and maximum.
 POSE_IMAGES = 80
+#: Farthest marker: 10 m, fifty times the array's 200 mm (a marker there is a few pixels wide).
+MAX_DISTANCE_MM = 10_000.0
 
 
 class StudyConfigError(FieldError):
@@ -94,8 +96,16 @@ class StudyConfig:
             fail("phis_deg", f"{list(self.phis_deg)}: allowed range is 0..{MAX_PHI_DEG:g} deg")
         if int(self.images) != self.images or not 1 <= self.images <= IMAGE_STEPS[-1]:
             fail("images", f"{self.images}: must be an integer in 1..{IMAGE_STEPS[-1]}")
-        if not (math.isfinite(self.distance_mm) and self.distance_mm > 0):
-            fail("distance_mm", f"{self.distance_mm}: must be > 0 mm")
+        if not (math.isfinite(self.distance_mm) and 0 < self.distance_mm <= MAX_DISTANCE_MM):
+            fail("distance_mm", f"{self.distance_mm}: allowed range is (0, {MAX_DISTANCE_MM:g}] mm")
+        if max(self.sizes_mm) > self.distance_mm:
+            fail(
+                "sizes_mm",
+                f"{max(self.sizes_mm):g}: larger than the {self.distance_mm:g} mm distance, the "
+                f"marker would fill the image; allowed range is (0, {self.distance_mm:g}] mm",
+            )
+        if not (isinstance(self.seed, int | np.integer) and 0 <= self.seed <= MAX_SEED):
+            fail("seed", f"{self.seed!r}: allowed range is 0..{MAX_SEED}")
         if not (math.isfinite(self.exposure) and 0 < self.exposure <= 1e6):
             fail("exposure", f"{self.exposure}: allowed range is (0, 1e6]")
         if not (math.isfinite(self.phi_resolution_deg) and 0.1 <= self.phi_resolution_deg <= 90):

@@ -1,12 +1,12 @@
 """The detectability study's figures: max phi with its PSF band, the rate heatmap, pose errors.
 
-They draw the tables of :mod:`bench.study.report` (per-cell summary, per-scale max phi).
+They draw the tables of :mod:`bench.study.report` (per-cell summary, per-scale max phi), in the
+look of :mod:`bench.study.plot_style`.
 """
 
 from __future__ import annotations
 
 import pathlib
-from collections.abc import Sequence
 
 import matplotlib
 
@@ -20,6 +20,17 @@ from matplotlib.lines import Line2D  # noqa: E402
 from matplotlib.patches import Patch, Rectangle  # noqa: E402
 from matplotlib.ticker import FormatStrFormatter, FuncFormatter  # noqa: E402
 
+from bench.study.plot_style import (  # noqa: E402
+    REFINEMENT_STYLES,
+    at_nominal,
+    fmt_num,
+    minor_log_label,
+    rate_label,
+    save,
+    scale_note,
+    size_colors,
+    text_color,
+)
 from bench.study.report import (  # noqa: E402
     BAND_KEYS,
     CELL_KEYS,
@@ -27,14 +38,11 @@ from bench.study.report import (  # noqa: E402
     REFINEMENTS,
     THRESHOLD,
     band,
-    nominal_scale_of,
     passes,
     require_columns,
 )
 
-_DPI = 120
 _NAN_Y = -5.0  # where "threshold never reached" is drawn in plot_max_phi
-_REFINEMENT_STYLES = {"lines": "-", "subpix": "--"}
 # Red (0) to green (1), with most of the colour change spent near the 95 % threshold where
 # the study's decisions are made: 0.90 is pale yellow-green, 0.95 mid green, 1.0 dark green.
 _RATE_CMAP = LinearSegmentedColormap.from_list(
@@ -48,42 +56,6 @@ _RATE_CMAP = LinearSegmentedColormap.from_list(
         (1.0, "#1b5e20"),
     ],
 )
-
-
-# --------------------------------------------------------------------------------------
-# plots
-# --------------------------------------------------------------------------------------
-
-
-def _size_colors(sizes: Sequence[float]) -> dict[float, tuple[float, float, float, float]]:
-    """One distinguishable colour per marker size (stable across plots)."""
-    cmap = plt.get_cmap("tab10")
-    return {s: cmap(i % 10) for i, s in enumerate(sorted(sizes))}
-
-
-def _fmt_num(value: float) -> str:
-    return f"{value:g}"
-
-
-def _save(fig: plt.Figure, path: pathlib.Path) -> None:
-    path = pathlib.Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=_DPI)
-    plt.close(fig)
-
-
-def _at_nominal(table: pd.DataFrame, nominal_scale: float) -> tuple[pd.DataFrame, float, list]:
-    """Rows at the nominal PSF scale, that scale, and all scales of the table (sorted)."""
-    scales = np.sort(pd.unique(table["psf_scale"].astype(float)))
-    nominal = nominal_scale_of(scales, nominal_scale)
-    return table[np.isclose(table["psf_scale"].astype(float), nominal)], nominal, scales.tolist()
-
-
-def _scale_note(nominal: float, scales: Sequence[float]) -> str:
-    if len(scales) == 1:
-        return f"PSF scale {_fmt_num(nominal)} (no band)"
-    span = f"{_fmt_num(scales[0])}\u2013{_fmt_num(scales[-1])}"
-    return f"nominal PSF scale {_fmt_num(nominal)} of {span}"
 
 
 def plot_max_phi(
@@ -106,7 +78,7 @@ def plot_max_phi(
     nominal = float(table["psf_scale_nominal"].iloc[0])
     lightings = list(pd.unique(table["lighting"]))
     sizes = sorted(pd.unique(table["size_mm"]))
-    colors = _size_colors(sizes)
+    colors = size_colors(sizes)
     alphas = np.sort(pd.unique(table["alpha_deg"]).astype(float))
     phi_top = max(float(np.nanmax(table["phi_max_tested_deg"].to_numpy(dtype=float))), 10.0)
     alpha_span = float(alphas.max() - alphas.min()) if alphas.size > 1 else 10.0
@@ -140,7 +112,7 @@ def plot_max_phi(
         ax.set_title(f"lighting: {lighting}" if n_panels > 1 or lighting else "max phi")
         ax.set_xlabel("field angle alpha (deg)")
         ax.set_xticks(alphas)
-        ax.set_xticklabels([_fmt_num(a) for a in alphas], fontsize=8)
+        ax.set_xticklabels([fmt_num(a) for a in alphas], fontsize=8)
         pad = 0.04 * alpha_span + 0.5 * width * len(sizes)
         ax.set_xlim(alphas.min() - pad, alphas.max() + pad)
         ax.grid(True, alpha=0.3)
@@ -149,11 +121,10 @@ def plot_max_phi(
     step = 10.0 if phi_top > 30 else 5.0
     ticks = np.arange(0.0, phi_top + 0.5 * step, step)
     axes[0, 0].set_yticks([_NAN_Y, *ticks])
-    axes[0, 0].set_yticklabels(["none", *(_fmt_num(t) for t in ticks)])
+    axes[0, 0].set_yticklabels(["none", *(fmt_num(t) for t in ticks)])
 
     size_handles = [
-        Line2D([], [], color=colors[s], marker="o", lw=1.8, label=f"{_fmt_num(s)} mm")
-        for s in sizes
+        Line2D([], [], color=colors[s], marker="o", lw=1.8, label=f"{fmt_num(s)} mm") for s in sizes
     ]
     fig.legend(
         handles=size_handles,
@@ -164,7 +135,7 @@ def plot_max_phi(
         frameon=False,
     )
     style_handles = [
-        Line2D([], [], color="0.2", marker="o", ms=5, label=f"line: PSF scale {_fmt_num(nominal)}"),
+        Line2D([], [], color="0.2", marker="o", ms=5, label=f"line: PSF scale {fmt_num(nominal)}"),
         Line2D(
             [],
             [],
@@ -177,7 +148,7 @@ def plot_max_phi(
         ),
     ]
     if len(scales) > 1:
-        listed = ", ".join(_fmt_num(s) for s in scales)
+        listed = ", ".join(fmt_num(s) for s in scales)
         style_handles.insert(
             1,
             Patch(
@@ -197,33 +168,14 @@ def plot_max_phi(
     fig.suptitle(
         "Largest detectable marker tilt vs position in the field of view\n"
         + (
-            f"line: PSF scale {_fmt_num(nominal)}; band: PSF scale "
-            f"{_fmt_num(scales[0])}\u2013{_fmt_num(scales[-1])}"
+            f"line: PSF scale {fmt_num(nominal)}; band: PSF scale "
+            f"{fmt_num(scales[0])}\u2013{fmt_num(scales[-1])}"
             if len(scales) > 1
-            else f"PSF scale {_fmt_num(nominal)} (no band)"
+            else f"PSF scale {fmt_num(nominal)} (no band)"
         ),
         fontsize=11,
     )
-    _save(fig, path)
-
-
-def _text_color(rgba: tuple[float, float, float, float]) -> str:
-    r, g, b = rgba[:3]
-    return "white" if 0.299 * r + 0.587 * g + 0.114 * b < 0.45 else "black"
-
-
-def _rate_label(rate: float) -> str:
-    """Compact cell label: '1', '0', '.95'; never rounds a non-1 rate to '1.00'."""
-    if rate >= 1.0:
-        return "1"
-    if rate <= 0.0:
-        return "0"
-    text = f"{rate:.2f}"
-    if text == "1.00":
-        return ">.99"
-    if text == "0.00":
-        return "<.01"
-    return text.lstrip("0")
+    save(fig, path)
 
 
 def plot_heatmap(
@@ -243,7 +195,7 @@ def plot_heatmap(
     """
     needed = [*CELL_KEYS, "detection_rate", "decided"]
     require_columns(summary, needed, "summary table", nonempty=True)
-    summary, nominal, scales = _at_nominal(summary, nominal_scale)
+    summary, nominal, scales = at_nominal(summary, nominal_scale)
     lightings = list(pd.unique(summary.sort_values("lighting")["lighting"]))
     sizes = sorted(pd.unique(summary["size_mm"]))
     alphas = np.sort(pd.unique(summary["alpha_deg"]).astype(float))
@@ -290,7 +242,7 @@ def plot_heatmap(
                     ax.text(c, r, "-", ha="center", va="center", fontsize=fontsize)
                     continue
                 low = not passes(rate, threshold)
-                label = _rate_label(rate) + ("" if decided[r, c] else "?")
+                label = rate_label(rate) + ("" if decided[r, c] else "?")
                 ax.text(
                     c,
                     r,
@@ -299,20 +251,20 @@ def plot_heatmap(
                     va="center",
                     fontsize=fontsize,
                     fontweight="bold" if low else "normal",
-                    color=_text_color(cmap(rate)),
+                    color=text_color(cmap(rate)),
                 )
                 if low:
                     ax.add_patch(
                         Rectangle((c - 0.5, r - 0.5), 1.0, 1.0, fill=False, ec="black", lw=0.8)
                     )
-            title = f"{_fmt_num(size)} mm"
+            title = f"{fmt_num(size)} mm"
             if n_rows > 1 or lighting:
                 title += f", {lighting}"
             ax.set_title(title, fontsize=9)
             ax.set_xticks(np.arange(alphas.size))
-            ax.set_xticklabels([_fmt_num(a) for a in alphas], fontsize=7)
+            ax.set_xticklabels([fmt_num(a) for a in alphas], fontsize=7)
             ax.set_yticks(np.arange(phis.size))
-            ax.set_yticklabels([_fmt_num(p) for p in phis], fontsize=7)
+            ax.set_yticklabels([fmt_num(p) for p in phis], fontsize=7)
             if i == n_rows - 1:
                 ax.set_xlabel("alpha (deg)", fontsize=8)
             if j == 0:
@@ -321,18 +273,12 @@ def plot_heatmap(
     cbar.set_label("detection rate (right id)")
     cbar.ax.axhline(threshold, color="black", lw=1.0)
     fig.suptitle(
-        f"Detection rate per cell, {_scale_note(nominal, scales)}\n"
+        f"Detection rate per cell, {scale_note(nominal, scales)}\n"
         f"bold, outlined: below {threshold * 100:g}%; ?: Wilson interval still holds "
         f"{threshold * 100:g}%; -: not tested",
         fontsize=10,
     )
-    _save(fig, path)
-
-
-def _minor_log_label(value: float, _pos: int) -> str:
-    """Label the minor ticks 2 and 5 of each decade of a log axis, as plain numbers."""
-    mantissa = value / 10.0 ** np.floor(np.log10(value))
-    return f"{value:g}" if np.isclose(mantissa, [2.0, 5.0]).any() else ""
+    save(fig, path)
 
 
 def plot_pose_error(
@@ -358,7 +304,7 @@ def plot_pose_error(
         for s in ("median", p_stat)
     ]
     require_columns(summary, [*CELL_KEYS, *columns], "summary table", nonempty=True)
-    table, nominal, scales = _at_nominal(summary, nominal_scale)
+    table, nominal, scales = at_nominal(summary, nominal_scale)
     if phi_deg is not None:
         table = table[np.isclose(table["phi_deg"].astype(float), phi_deg)]
         if table.empty:
@@ -366,7 +312,7 @@ def plot_pose_error(
     collapsed = table.groupby(BAND_KEYS, sort=True, dropna=False)[columns].median().reset_index()
     lightings = list(pd.unique(collapsed["lighting"]))
     sizes = sorted(pd.unique(collapsed["size_mm"]))
-    colors = _size_colors(sizes)
+    colors = size_colors(sizes)
     alphas = np.sort(pd.unique(collapsed["alpha_deg"]).astype(float))
     quantities = [
         ("rot_err_deg", "rotation error (deg)"),
@@ -401,7 +347,7 @@ def plot_pose_error(
                         ax.plot(
                             grp["alpha_deg"],
                             grp[f"{metric}_{refinement}_{stat}"],
-                            ls=_REFINEMENT_STYLES[refinement],
+                            ls=REFINEMENT_STYLES[refinement],
                             color=colors[size],
                             marker="o",
                             ms=3.5,
@@ -411,21 +357,21 @@ def plot_pose_error(
                     ax.set_yscale("log")
                     # plain numbers (0.2, 0.5, 1) instead of the default 2x10^-1 labels
                     ax.yaxis.set_major_formatter(FormatStrFormatter("%g"))
-                    ax.yaxis.set_minor_formatter(FuncFormatter(_minor_log_label))
+                    ax.yaxis.set_minor_formatter(FuncFormatter(minor_log_label))
                 title = f"{stat_label} {label}"
                 ax.set_title(f"{title}, {lighting}" if len(lightings) > 1 else title, fontsize=10)
                 ax.set_ylabel(label)
                 ax.set_xticks(alphas)
-                ax.set_xticklabels([_fmt_num(a) for a in alphas], fontsize=8)
+                ax.set_xticklabels([fmt_num(a) for a in alphas], fontsize=8)
                 ax.grid(True, alpha=0.3, which="both")
     for ax in axes[-1]:
         ax.set_xlabel("field angle alpha (deg)")
 
     handles = [
-        Line2D([], [], color=colors[s], marker="o", ms=4, label=f"{_fmt_num(s)} mm") for s in sizes
+        Line2D([], [], color=colors[s], marker="o", ms=4, label=f"{fmt_num(s)} mm") for s in sizes
     ]
     handles += [
-        Line2D([], [], color="0.2", ls=_REFINEMENT_STYLES[r], label=f"corners: {r}")
+        Line2D([], [], color="0.2", ls=REFINEMENT_STYLES[r], label=f"corners: {r}")
         for r in REFINEMENTS
     ]
     fig.legend(
@@ -436,12 +382,12 @@ def plot_pose_error(
         frameon=False,
     )
     how = (
-        f"at phi = {_fmt_num(phi_deg)} deg"
+        f"at phi = {fmt_num(phi_deg)} deg"
         if phi_deg is not None
         else "median over the tested phis of the per-cell statistics"
     )
     fig.suptitle(
-        f"Pose error of detected markers vs field angle ({how}), {_scale_note(nominal, scales)}",
+        f"Pose error of detected markers vs field angle ({how}), {scale_note(nominal, scales)}",
         fontsize=11,
     )
-    _save(fig, path)
+    save(fig, path)

@@ -14,6 +14,8 @@ from collections.abc import Sequence
 import numpy as np
 import pandas as pd
 
+from bench.common.marker_score import ERRORS
+
 __all__ = [
     "BAND_COLUMNS",
     "BAND_KEYS",
@@ -50,8 +52,9 @@ REFINEMENTS: tuple[str, ...] = ("lines", "subpix")
 #: between order statistics, i.e. Hyndman & Fan type 7).
 PERCENTILE = 95
 
-#: Per-image error quantities; each comes once per refinement, as ``<metric>_<refinement>``.
-METRICS: tuple[str, ...] = ("corner_err_px", "rot_err_deg", "trans_err_mm", "ambiguity_ratio")
+#: Per-image error quantities (:mod:`bench.common.marker_score`'s); each comes once per
+#: refinement, as ``<metric>_<refinement>``.
+METRICS: tuple[str, ...] = ERRORS
 
 #: Per-cell statistics of every metric column, as suffixes ``_<statistic>``.
 STATISTICS: tuple[str, ...] = ("median", f"p{PERCENTILE}", "max")

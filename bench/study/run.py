@@ -9,43 +9,23 @@ needs it.
 from __future__ import annotations
 
 import json
-import platform
 import time
 from dataclasses import dataclass
-from importlib import metadata
 from pathlib import Path
 
 import pandas as pd
 import pyarrow.parquet as pq
 
-from bench.common.atomic import atomic_path, check_writable, write_bytes, write_json
+from bench.common.atomic import atomic_path, write_bytes, write_json
 from bench.common.executor import TaskPool
+from bench.common.manifest import hash_files
+from bench.common.resumable import finish_run, open_run
 from bench.study import plots as report_plots
 from bench.study import report
-from bench.study.cells import init_worker, run_cell
+from bench.study.cells import init_study_worker, run_cell
 from bench.study.config import Cell, StudyConfig, StudyConfigError
-
-PACKAGES = (
-    "whiskerbench",
-    "mitsuba",
-    "drjit",
-    "opencv-contrib-python-headless",
-    "numpy",
-    "pandas",
-    "pyarrow",
-    "matplotlib",
-    "trimesh",
-)
-
-
-def package_versions() -> dict[str, str]:
-    versions = {"python": platform.python_version()}
-    for name in PACKAGES:
-        try:
-            versions[name] = metadata.version(name)
-        except metadata.PackageNotFoundError:
-            versions[name] = "not installed"
-    return versions
+from renderers.marker_renderer import MarkerRenderer
+from renderers.variant import init_worker
 
 
 @dataclass(frozen=True)
@@ -57,9 +37,11 @@ class _CellTask:
     save_images: bool
 
 
-def _run_task(task: _CellTask) -> tuple[_CellTask, dict]:
+def _run_task(task: _CellTask, renderer: MarkerRenderer) -> tuple[_CellTask, dict]:
     start = time.perf_counter()
-    timings = run_cell(task.config, task.cell, task.out_dir, task.scales, task.save_images)
+    timings = run_cell(
+        task.config, task.cell, renderer, task.out_dir, task.scales, task.save_images
+    )
     timings["cell_s"] = time.perf_counter() - start
     return task, timings
 
@@ -121,24 +103,18 @@ def run_study(
     """Run (or resume) the study into ``out_dir`` and return its manifest.
 
     Finished cells (``cells/<key>_x<scale>.parquet``) are skipped, so rerunning an interrupted
-    command continues it. A folder that holds a study with a different configuration is refused.
+    command continues it. A folder that holds another command's output, or cells of a study with
+    a different configuration, is refused (StudyConfigError on ``out``) before anything is written.
     """
-    try:
-        check_writable(out_dir)
-    except ValueError as exc:
-        raise StudyConfigError("out", str(exc)) from None
+    out_dir = Path(out_dir)
     wall = {}
     t0 = time.perf_counter()
     config_json = json.loads(json.dumps(config.to_json(), default=str))
-    config_path = out_dir / "config.json"
-    if config_path.exists() and json.loads(config_path.read_text()) != config_json:
-        raise StudyConfigError(
-            "out",
-            f"{out_dir} holds a study with another configuration; "
-            "choose another --out or delete that folder",
-        )
-    out_dir.mkdir(parents=True, exist_ok=True)
-    write_json(config_path, config_json)
+    try:
+        run = open_run(out_dir, "detectability", config_json, units="cells/*.parquet")
+    except ValueError as exc:
+        raise StudyConfigError("out", str(exc)) from None
+    write_json(out_dir / "config.json", config_json)
 
     # --- Cells: the grid, then refinement rounds between the last passing and first failing tilt
     threads = 1 if workers > 1 else None
@@ -149,7 +125,7 @@ def run_study(
     done: list[tuple[Cell, float]] = []
     known: dict[tuple[Cell, float], float] = {}
     computed = rounds = 0
-    with TaskPool(workers, init_worker, (chosen, threads)) as pool:
+    with TaskPool(workers, init_study_worker, (config, chosen, threads)) as pool:
         while plan:
             tasks = []
             # Large markers first: they pass, and passing cells draw the most images, so the
@@ -201,24 +177,24 @@ def run_study(
 
     # --- Manifest
     n_images = int(sum(images_used.values()))
-    manifest = {
-        "study": "detectability",
-        "config": config_json,
-        "camera_profile": config.camera.name,
-        "psf_scales": list(config.psf_scales),
-        "seed": config.seed,
-        "variant": chosen,
-        "versions": package_versions(),
-        "workers": workers,
-        "cells_total": len(done),
-        "cells_computed": computed,
-        "cells_resumed": len(done) - computed,
-        "refinement_rounds": rounds - 1,
-        "images_total": n_images,
-        "images_per_cell": dict(sorted(images_used.items())),
-        "wall_s": {k: round(v, 3) for k, v in wall.items()},
-        "stage_cpu_s": {k: round(v, 3) for k, v in stage.items()},
-        "images_per_s": round(n_images / wall["cells_s"], 1) if computed else None,
-    }
-    write_json(out_dir / "manifest.json", manifest)
-    return manifest
+    tables = ["images.parquet", "summary.csv", "max_phi_by_scale.csv", "max_phi.csv"]
+    plots = ["max_phi.png", "heatmap.png", "pose_error.png"]
+    return finish_run(
+        run,
+        seed=config.seed,
+        variant=chosen,
+        outputs=hash_files([out_dir / n for n in ["config.json", *tables, *plots]], out_dir),
+        study="detectability",
+        camera_profile=config.camera.name,
+        psf_scales=list(config.psf_scales),
+        workers=workers,
+        cells_total=len(done),
+        cells_computed=computed,
+        cells_resumed=len(done) - computed,
+        refinement_rounds=rounds - 1,
+        images_total=n_images,
+        images_per_cell=dict(sorted(images_used.items())),
+        wall_s={k: round(v, 3) for k, v in wall.items()},  # the phases, with total_s
+        stage_cpu_s={k: round(v, 3) for k, v in stage.items()},
+        images_per_s=round(n_images / wall["cells_s"], 1) if computed else None,
+    )

@@ -1,0 +1,165 @@
+"""Provenance: one ``manifest.json`` per output folder, written the same way by every command.
+
+A manifest says what made the folder (``kind``: the command), with which config, seed, package
+versions and Mitsuba variant, from which input files (path -> SHA-256), what it wrote, and when
+and for how long. Its ``kind`` is also the folder's claim: a command refuses a folder that holds
+another command's manifest (:func:`claim`), before any work and before writing anything, so two
+commands pointed at one folder never overwrite each other's results.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import platform
+import sys
+import time
+from collections.abc import Iterable, Mapping
+from datetime import UTC, datetime
+from importlib import metadata
+from pathlib import Path
+from typing import Any
+
+from bench.common.atomic import check_writable, clean_stale, write_json
+
+SCHEMA = 1
+MANIFEST = "manifest.json"
+PACKAGES = (
+    "whiskerbench",
+    "mitsuba",
+    "drjit",
+    "opencv-contrib-python-headless",
+    "numpy",
+    "pandas",
+    "pyarrow",
+    "matplotlib",
+    "trimesh",
+)
+
+
+def package_versions() -> dict[str, str]:
+    """Python's and every package's version that shapes the results."""
+    versions = {"python": platform.python_version()}
+    for name in PACKAGES:
+        try:
+            versions[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            versions[name] = "not installed"
+    return versions
+
+
+def sha256(path: Path) -> str:
+    """Hex SHA-256 of a file, read in 1 MiB blocks (memory stays bounded for any video)."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def json_sha256(obj: Any) -> str:
+    """SHA-256 of a JSON value's canonical text: equal configs give equal hashes."""
+    return hashlib.sha256(json.dumps(obj, sort_keys=True, default=str).encode()).hexdigest()
+
+
+def current_variant() -> str | None:
+    """The Mitsuba variant set in this process, or None when Mitsuba was never loaded."""
+    mi = sys.modules.get("mitsuba")
+    return mi.variant() if mi is not None else None
+
+
+def read_manifest(folder: Path) -> dict | None:
+    """``folder/manifest.json`` as a dict; None when there is none (or it is not a JSON object)."""
+    path = Path(folder) / MANIFEST
+    try:
+        record = json.loads(path.read_text())
+    except (OSError, ValueError):  # absent, unreadable, or not JSON: nobody's claim
+        return None
+    return record if isinstance(record, dict) else None
+
+
+def kind_of(record: Mapping) -> str:
+    """The command that wrote a manifest; manifests from before ``kind`` are recognized by keys."""
+    if "kind" in record:
+        return str(record["kind"])
+    if record.get("study") == "detectability":
+        return "detectability"
+    if "settings_sha256" in record and "files" in record:
+        return "dataset"
+    return "unknown"
+
+
+def claim(folder: Path, kind: str) -> dict | None:
+    """Check that ``kind`` may write into ``folder``; return the manifest already there, if any.
+
+    Raises ValueError (one line naming the folder and the kind found) when the folder is not
+    writable or holds another command's manifest. Writes nothing but deletes the temporary files
+    that a killed run left there.
+    """
+    folder = Path(folder)
+    check_writable(folder)
+    existing = read_manifest(folder)
+    if existing is not None and kind_of(existing) != kind:
+        raise ValueError(
+            f"{folder} holds the output of `{kind_of(existing)}` (its {MANIFEST}); "
+            f"`{kind}` does not write there: choose another folder"
+        )
+    if folder.is_dir():
+        clean_stale(folder)
+    return existing
+
+
+class RunClock:
+    """When a command started (UTC) and how long it has run (monotonic)."""
+
+    def __init__(self) -> None:
+        self.started = datetime.now(UTC).isoformat(timespec="seconds")
+        self._t0 = time.perf_counter()
+
+    def elapsed_s(self) -> float:
+        return time.perf_counter() - self._t0
+
+
+def hash_files(paths: Iterable[Path], root: Path) -> dict[str, str]:
+    """{path relative to ``root``: SHA-256} of each file."""
+    return {str(Path(p).relative_to(root)): sha256(p) for p in sorted(paths)}
+
+
+def build_manifest(
+    kind: str,
+    clock: RunClock,
+    config: Any,
+    seed: int | None = None,
+    variant: str | None = None,
+    inputs: Mapping[str, str] | None = None,
+    outputs: Mapping[str, str] | None = None,
+    finished: bool = True,
+    **extra: Any,
+) -> dict:
+    """The common fields (see the module docstring), then ``extra`` (a command's own figures).
+
+    ``wall_s`` is the seconds since ``clock`` started unless ``extra`` gives it (the study
+    gives its phases). An unfinished manifest (``finished: None``) marks a run under way.
+    """
+    record = {
+        "kind": kind,
+        "schema": SCHEMA,
+        "config": config,
+        "seed": seed,
+        "versions": package_versions(),
+        "variant": variant if variant is not None else current_variant(),
+        "inputs": dict(inputs or {}),
+        "outputs": dict(outputs or {}),
+        "started": clock.started,
+        "finished": datetime.now(UTC).isoformat(timespec="seconds") if finished else None,
+        "wall_s": round(clock.elapsed_s(), 3),
+    }
+    record.update(extra)
+    return record
+
+
+def write_manifest(folder: Path, record: Mapping) -> dict:
+    """Write ``record`` as ``folder/manifest.json`` (atomically) and return it as a dict."""
+    record = json.loads(json.dumps(record, default=str))  # what a reader will get back
+    write_json(Path(folder) / MANIFEST, record)
+    return record

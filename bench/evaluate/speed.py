@@ -1,0 +1,98 @@
+"""Timing a pipeline on full frames: the busiest scene, its frames, single-core speed.
+
+Shared by ``compare`` (speed beside accuracy) and ``whiskerbench bench pipeline``: the frames
+are rendered whole (vegetation in every pixel), in time order around the largest deflection of a
+busy sample, so ROI tracking sees real motion; each pipeline's tracking is repeated until it has
+run for ``min_seconds`` and the fastest repeat counts (a slower repeat is another process's
+noise on these shared machines, not the pipeline's).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+
+import cv2
+import numpy as np
+import pandas as pd
+
+from bench.dataset.config import DatasetConfig, SampleSpec
+from bench.dataset.sample import sample_recorder, simulate_sample
+from pipeline.presets import PipelineConfig
+from pipeline.track import MarkerSet, track
+
+#: The busiest scene: dense leaves, a branch, outdoor whisking (frames from its largest
+#: deflection). Every speed figure is measured on its full frames.
+SPEED_SAMPLE = DatasetConfig(
+    foliage=("dense",),
+    distances=("intermediate",),
+    branches=((0.0,),),
+    protocols=("outdoor",),
+    passes=1,
+)
+
+
+def pick_sample(config: DatasetConfig) -> SampleSpec:
+    """The first sample with both foliage and a branch (the busiest scene), else the first."""
+    samples = config.samples()
+    busy = [s for s in samples if s.foliage != "none" and s.branches_mm]
+    return (busy or samples)[0]
+
+
+def full_frames(config: DatasetConfig, frames: int) -> tuple[list[np.ndarray], pd.DataFrame]:
+    """``frames`` consecutive full frames around the largest deflection, and their labels
+    (renumbered from 0, like the frames)."""
+    sample = pick_sample(config)
+    sim = simulate_sample(config, sample)
+    deflection = sim.labels.groupby("frame")["deflection_mm"].max().to_numpy()
+    start = int(np.clip(np.argmax(deflection) - frames // 2, 0, max(0, len(deflection) - frames)))
+    indices = np.arange(start, min(start + frames, len(deflection)))
+    recorder = sample_recorder(
+        config, sample, sim, dataclasses.replace(config.sampling, full_frame=True)
+    )
+    images = [recorder.frame(int(f)) for f in indices]
+    labels = sim.labels[sim.labels["frame"].isin(indices)].copy()
+    labels["frame"] -= start
+    print(
+        f"sample {sample.sample_id}: {len(images)} full frames ({indices[0]}-{indices[-1]}, "
+        f"largest deflection {deflection.max():.1f} mm)"
+    )
+    return images, labels
+
+
+@contextmanager
+def one_opencv_thread() -> Iterator[None]:
+    """OpenCV on one thread inside the block (single-core speed), as it was after it."""
+    threads = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    try:
+        yield
+    finally:
+        cv2.setNumThreads(threads)
+
+
+def time_pipeline(
+    images: list[np.ndarray],
+    config: DatasetConfig,
+    pipeline: PipelineConfig,
+    min_seconds: float,
+) -> tuple[float, pd.DataFrame]:
+    """(best frames/s over repeats, the detections of one run)."""
+    markers = MarkerSet(config.array.marker_ids, config.array.marker_size_mm)
+    best, total, result = 0.0, 0.0, None
+    while result is None or total < min_seconds:
+        t0 = time.perf_counter()
+        result = track(
+            images,
+            config.camera.lens,
+            markers,
+            pipeline.detector,
+            pipeline.search,
+            pipeline.pose_method,
+        )
+        elapsed = time.perf_counter() - t0
+        total += elapsed
+        best = max(best, len(images) / elapsed)
+    return best, result.detections

@@ -1,0 +1,87 @@
+"""A lone marker's renderer as an object handed to each task: one loaded scene per lighting.
+
+The detectability study and the sweeps render many crops of one marker (dictionary, id) through
+one lens under a few lightings. Loading a Mitsuba scene and compiling its kernels costs more than
+rendering a crop, so a process builds one :class:`MarkerRenderer` and passes it to every task it
+runs (a pool worker builds its own: :class:`bench.common.executor.TaskPool`'s ``setup``). Each
+lighting's scene is loaded on its first crop and re-posed for every crop after that. Mitsuba is
+imported then too, after the process chose its variant (:func:`renderers.variant.init_worker`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from renderers.window import Window
+from scenes.camera import FisheyeCamera
+from scenes.lighting import get_lighting
+from scenes.marker import MarkerSpec, carrier_outline
+
+if TYPE_CHECKING:
+    from renderers.fisheye import FisheyeRenderer, RenderedWindow
+    from renderers.mitsuba_scene import CanopyScene
+
+#: Size of the loaded print; each crop scales it to its own marker's size when posing it.
+SCENE_SIZE_MM = 10.0
+
+
+class MarkerRenderer:
+    """Crops of one marker through one lens, ``spp`` samples per pixel, any lighting preset."""
+
+    def __init__(self, lens: FisheyeCamera, dictionary: str, marker_id: int, spp: int = 16):
+        self.lens = lens
+        self.marker = MarkerSpec(dictionary, marker_id, SCENE_SIZE_MM)
+        self.spp = spp
+        self._loaded: dict[str, tuple[FisheyeRenderer, CanopyScene | None]] = {}
+
+    def fisheye(self, lighting: str) -> FisheyeRenderer:
+        """The renderer of the marker's scene under that lighting preset (loaded on first use)."""
+        return self._scene(lighting)[0]
+
+    def _scene(self, lighting: str) -> tuple[FisheyeRenderer, CanopyScene | None]:
+        if lighting not in self._loaded:
+            from renderers.fisheye import FisheyeRenderer
+            from renderers.mitsuba_scene import CanopyScene, MarkerScene
+
+            preset = get_lighting(lighting)
+            scene = MarkerScene(self.marker, preset)
+            canopy = CanopyScene(preset) if preset.canopy else None
+            self._loaded[lighting] = (FisheyeRenderer(self.lens, scene, spp=self.spp), canopy)
+        return self._loaded[lighting]
+
+    def crop(
+        self, T_cam_marker: np.ndarray, size_mm: float, grid_px: int, margin_px: int = 16
+    ) -> Window:
+        """The window framing the marker's carrier plus ``margin_px``, on a ``grid_px`` grid."""
+        spec = dataclasses.replace(self.marker, size_mm=size_mm)
+        outline = self.lens.project(carrier_outline(T_cam_marker, spec))
+        return Window.around(outline, self.lens, margin_px=margin_px).aligned(grid_px, self.lens)
+
+    def render(
+        self,
+        lighting: str,
+        T_cam_marker: np.ndarray,
+        size_mm: float,
+        window: Window,
+        seed: int,
+    ) -> RenderedWindow:
+        """The clean render of ``window`` with the marker (side ``size_mm``) at that pose."""
+        renderer = self.fisheye(lighting)
+        renderer.scene.set_pose(T_cam_marker, size_mm)
+        return renderer.render(window, seed=seed)
+
+    def radiance(
+        self, lighting: str, rendered: RenderedWindow, n_images: int, rng: np.random.Generator
+    ) -> np.ndarray:
+        """Linear RGB radiance of a render: (H, W, 3), or (n_images, H, W, 3) under a canopy
+        (a new leaf shadow position per image, drawn from ``rng``)."""
+        from renderers.fisheye import canopy_visibility
+
+        canopy = self._scene(lighting)[1]
+        if canopy is None:
+            return rendered.radiance()
+        visibility = canopy_visibility(canopy, get_lighting(lighting), rendered, n_images, rng)
+        return rendered.radiance(visibility)

@@ -1,0 +1,98 @@
+"""Provenance: every writing command's manifest has the common fields, and the SHA-256 it records
+for its inputs and outputs are those of the files (recomputed here with hashlib)."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+
+from pipeline.presets import PRESETS
+
+FIELDS = {
+    "kind", "schema", "config", "seed", "versions", "variant", "inputs", "outputs", "started",
+    "finished", "wall_s",
+}  # fmt: skip
+BRANCH = "soft-intermediate-100-outdoor-lab"
+
+
+def _digest(path) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def check_manifest(folder: Path, kind: str) -> dict:
+    """The manifest in ``folder``: its fields, kind, finish time and every recorded digest."""
+    manifest = json.loads((folder / "manifest.json").read_text())
+    assert set(manifest) >= FIELDS, FIELDS - set(manifest)
+    assert manifest["kind"] == kind and manifest["schema"] == 1
+    assert manifest["finished"] >= manifest["started"]
+    assert manifest["versions"]["numpy"] and manifest["versions"]["python"]
+    for path, digest in manifest["inputs"].items():
+        assert _digest(path) == digest, path
+    for name, digest in manifest["outputs"].items():
+        assert _digest(folder / name) == digest, name
+    return manifest
+
+
+@pytest.mark.slow
+def test_dataset_manifest(rendered_pair, variant) -> None:
+    manifest = check_manifest(rendered_pair, "dataset")
+    assert manifest["variant"] == variant and manifest["seed"] == manifest["config"]["seed"]
+    assert manifest["outputs"] == manifest["files"]
+    assert f"{BRANCH}/sample.json" in manifest["outputs"]
+
+
+@pytest.mark.slow
+def test_study_manifest(variant, tmp_path) -> None:
+    from bench.study.config import StudyConfig
+    from bench.study.run import run_study
+
+    config = StudyConfig(sizes_mm=(13.2,), alphas_deg=(0.0,), phis_deg=(0.0,), images=3)
+    returned = run_study(config, tmp_path / "study", variant=variant, progress=False)
+    manifest = check_manifest(tmp_path / "study", "detectability")
+    assert manifest == returned and manifest["variant"] == variant
+    assert manifest["seed"] == config.seed and "images.parquet" in manifest["outputs"]
+    assert manifest["config"] == json.loads((tmp_path / "study" / "config.json").read_text())
+
+
+@pytest.mark.slow
+def test_detect_records_the_videos_digest(rendered_pair, tmp_path) -> None:
+    from bench.evaluate.detect import run_detect
+    from scenes.profile import load_profile
+
+    video = rendered_pair / BRANCH / "video.mp4"
+    camera = load_profile(rendered_pair / BRANCH / "camera.json").lens
+    run_detect(video, camera, PRESETS["paper"], tmp_path / "d")
+    manifest = check_manifest(tmp_path / "d", "detect")
+    assert manifest["inputs"][str(video)] == _digest(video)
+    assert manifest["config"]["pipeline"] == PRESETS["paper"].to_json()
+    assert set(manifest["outputs"]) == {"detections.parquet", "branches.json", "branches.png"}
+
+
+@pytest.mark.slow
+def test_score_records_every_sample_file(rendered_pair, tmp_path) -> None:
+    from bench.evaluate.score import score_dataset
+
+    data = tmp_path / "data"
+    shutil.copytree(rendered_pair, data, ignore=shutil.ignore_patterns("scores", "compare"))
+    score_dataset(data, PRESETS["paper"], tmp_path / "s")
+    manifest = check_manifest(tmp_path / "s", "score")
+    files = json.loads((data / "manifest.json").read_text())["files"]
+    assert set(manifest["inputs"]) == {str(data / "manifest.json")} | {
+        str(data / rel) for rel in files
+    }
+    assert "samples.csv" in manifest["outputs"]
+    check_manifest(tmp_path / "s" / BRANCH, "detect")  # each sample's detect folder
+
+
+@pytest.mark.slow
+def test_bench_pipeline_manifest(variant, tmp_path) -> None:
+    from bench.benchmarks.pipeline import bench_pipeline
+
+    bench_pipeline([PRESETS["paper"]], frames=2, min_seconds=0.0, variant=variant, out=tmp_path)
+    manifest = check_manifest(tmp_path, "bench-pipeline")
+    assert set(manifest["outputs"]) == {"bench.json"}
+    assert manifest["config"]["pipelines"] == [PRESETS["paper"].to_json()]
