@@ -14,18 +14,15 @@ from pipeline.branches import (
     AGGREGATIONS,
     aggregate,
     candidates,
-    contact,
-    deflection_mm,
-    deflection_vectors,
     estimate_branches,
     foliage_threshold,
     max_in_contact,
-    no_contact_pose,
     online_threshold,
     peaks,
     refine,
     whisker_of_marker,
 )
+from pipeline.deflection import contact, deflection_mm, deflection_vectors, no_contact_pose
 from scenes.array import ArraySpec, T_cam_marker, T_marker0_marker
 from scenes.conventions import invert_T, make_T, rot_x, rot_y
 
@@ -465,7 +462,7 @@ def test_whisker_of_marker():
 
 
 def test_check_baseline_refuses_a_sample_that_starts_moving() -> None:
-    from pipeline.branches import check_baseline
+    from pipeline.deflection import check_baseline
 
     rng = np.random.default_rng(0)
     vectors = rng.normal(0.0, 0.3, (40, 13, 3))  # free air: pose noise only

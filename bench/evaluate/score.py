@@ -143,7 +143,8 @@ def score_dataset(
     """
     from bench.common.video import video_info
     from bench.evaluate.detect import run_detect
-    from pipeline.branches import NoBaselineError, foliage_threshold
+    from pipeline.branches import foliage_threshold
+    from pipeline.deflection import NoBaselineError
     from scenes.profile import load_profile
 
     dataset, out_dir = Path(dataset), Path(out_dir)
