@@ -364,8 +364,8 @@ def shipped_profiles() -> tuple[str, ...]:
 MAX_PROFILE_BYTES = 1 << 20
 
 
-def load_profile(name_or_path: str | Path) -> CameraProfile:
-    """A shipped profile by name (``ideal``, ``prototype``) or a profile/camera JSON file."""
+def profile_path(name_or_path: str | Path) -> Path:
+    """The file a shipped profile's name or a profile/camera JSON path stands for."""
     text = str(name_or_path)
     path = PROFILES_DIR / f"{text}.json" if text in shipped_profiles() else Path(text)
     if not path.is_file():
@@ -374,6 +374,12 @@ def load_profile(name_or_path: str | Path) -> CameraProfile:
             f"{text!r} is neither a shipped profile ({', '.join(shipped_profiles())}) "
             "nor a readable JSON file",
         )
+    return path
+
+
+def load_profile(name_or_path: str | Path) -> CameraProfile:
+    """A shipped profile by name (``ideal``, ``prototype``) or a profile/camera JSON file."""
+    path = profile_path(name_or_path)
     if path.stat().st_size > MAX_PROFILE_BYTES:
         raise ProfileError("camera", f"{path}: larger than {MAX_PROFILE_BYTES} bytes")
     try:

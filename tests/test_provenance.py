@@ -47,15 +47,21 @@ def test_dataset_manifest(rendered_pair, variant) -> None:
 
 @pytest.mark.slow
 def test_study_manifest(variant, tmp_path) -> None:
-    from bench.study.config import StudyConfig
-    from bench.study.run import run_study
+    """Through the CLI, with the camera profile as a user's file: the file is an input."""
+    from bench.cli.main import main
+    from scenes.profile import profile_path
 
-    config = StudyConfig(sizes_mm=(13.2,), alphas_deg=(0.0,), phis_deg=(0.0,), images=3)
-    returned = run_study(config, tmp_path / "study", variant=variant, progress=False)
-    manifest = check_manifest(tmp_path / "study", "detectability")
-    assert manifest == returned and manifest["variant"] == variant
-    assert manifest["seed"] == config.seed and "images.parquet" in manifest["outputs"]
-    assert manifest["config"] == json.loads((tmp_path / "study" / "config.json").read_text())
+    camera = tmp_path / "my_camera.json"
+    shutil.copy(profile_path("prototype"), camera)
+    out = tmp_path / "study"
+    grid = ["--sizes", "13.2", "--alphas", "0", "--phis", "0", "--images", "3"]
+    argv = ["detectability", *grid, "--camera", str(camera), "--workers", "1"]
+    assert main([*argv, "--variant", variant, "--out", str(out)]) == 0
+    manifest = check_manifest(out, "detectability")
+    assert manifest["inputs"] == {str(camera): _digest(camera)}
+    assert manifest["variant"] == variant and manifest["seed"] == 0
+    assert "images.parquet" in manifest["outputs"]
+    assert manifest["config"] == json.loads((out / "config.json").read_text())
 
 
 @pytest.mark.slow

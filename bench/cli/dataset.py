@@ -6,6 +6,7 @@ import argparse
 
 from bench.cli import limits
 from bench.cli.args import check_out_folder, distinct, name_list, seed
+from bench.common.manifest import input_digests
 from bench.dataset.config import (
     DEFAULT_BRANCHES,
     DEFAULT_DISTANCES,
@@ -17,6 +18,7 @@ from bench.dataset.config import (
 )
 from bench.study.config import profile_from_option
 from renderers.frame_sampling import FrameSampling
+from scenes.profile import profile_path
 
 #: A few short samples: one foliage, one distance, no / one / two branches, one outdoor pass.
 QUICK = {
@@ -174,7 +176,10 @@ def cmd_dataset(args: argparse.Namespace) -> int:
         f"finished samples are kept in {out}/<sample id>/ (each verified by its sample.json); "
         "rerun the same command to resume"
     )
-    manifest = run_dataset(config, out, variant=args.variant, workers=args.workers)
+    camera_file = profile_path(args.camera or DEFAULT_PROFILE)
+    manifest = run_dataset(
+        config, out, args.variant, args.workers, inputs=input_digests([camera_file])
+    )
     rate = manifest["frames_per_s"]
     print(
         f"wrote {out}/ ({len(manifest['samples'])} samples, {manifest['skipped']} already done; "

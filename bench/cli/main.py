@@ -28,6 +28,7 @@ from bench.cli.evaluate import (
     cmd_score,
 )
 from bench.cli.lens import add_lens_parser
+from bench.common.manifest import input_digests
 from bench.study.config import (
     BAND_PSF_SCALES,
     DEFAULT_ALPHAS_DEG,
@@ -37,6 +38,7 @@ from bench.study.config import (
     detector_from_option,
     profile_from_option,
 )
+from scenes.profile import profile_path
 from scenes.validation import FieldError
 
 QUICK = {"sizes": (8.8, 13.2), "alphas": (0.0, 60.0, 85.0), "phis": (0.0, 30.0, 60.0), "images": 30}
@@ -210,7 +212,12 @@ def _cmd_detectability(args: argparse.Namespace) -> int:
     limits.check_study(config, workers)
     args.kept = f"finished cells are kept in {out / 'cells'}; rerun the same command to resume"
     manifest = run_study(
-        config, out, variant=args.variant, workers=workers, save_images=args.save_images
+        config,
+        out,
+        variant=args.variant,
+        workers=workers,
+        save_images=args.save_images,
+        inputs=input_digests([profile_path(args.camera)]),
     )
     print(
         f"wrote {out}/ ({manifest['cells_total']} cells, {manifest['cells_resumed']} resumed; "

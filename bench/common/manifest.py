@@ -120,6 +120,16 @@ class RunClock:
         return time.perf_counter() - self._t0
 
 
+def input_digests(paths: Iterable[Path]) -> dict[str, str]:
+    """{path: SHA-256} of the files a command read (a manifest's ``inputs``); paths below the
+    working folder (a shipped profile run from a clone) are written relative to it."""
+    cwd = Path.cwd()
+    return {
+        str(Path(p).relative_to(cwd) if Path(p).is_relative_to(cwd) else p): sha256(p)
+        for p in paths
+    }
+
+
 def hash_files(paths: Iterable[Path], root: Path) -> dict[str, str]:
     """{path relative to ``root``: SHA-256} of each file."""
     return {str(Path(p).relative_to(root)): sha256(p) for p in sorted(paths)}

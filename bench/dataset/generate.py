@@ -33,12 +33,14 @@ def run_dataset(
     variant: str | None = None,
     workers: int = 1,
     progress: bool = True,
+    inputs: dict[str, str] | None = None,
 ) -> dict:
     """Make (or finish) the dataset in ``out_dir``; return its manifest.
 
     Samples whose ``sample.json`` lists files that verify are skipped; a folder holding another
     command's output or samples made with other settings is refused (DatasetConfigError on
-    ``out``) before anything is written.
+    ``out``) before anything is written. ``inputs`` (path: SHA-256, e.g. the camera profile's
+    file) go into the manifest.
     """
     out_dir = Path(out_dir)
     settings = config.settings_hash()
@@ -84,6 +86,7 @@ def run_dataset(
         run,
         seed=config.seed,
         variant=chosen,
+        inputs=inputs,
         outputs=files,
         camera_profile=config.camera.name,
         samples=[r["sample_id"] for r in records],

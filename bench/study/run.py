@@ -99,12 +99,14 @@ def run_study(
     workers: int = 1,
     save_images: bool = False,
     progress: bool = True,
+    inputs: dict[str, str] | None = None,
 ) -> dict:
     """Run (or resume) the study into ``out_dir`` and return its manifest.
 
     Finished cells (``cells/<key>_x<scale>.parquet``) are skipped, so rerunning an interrupted
     command continues it. A folder that holds another command's output, or cells of a study with
     a different configuration, is refused (StudyConfigError on ``out``) before anything is written.
+    ``inputs`` (path: SHA-256, e.g. the camera profile's file) go into the manifest.
     """
     out_dir = Path(out_dir)
     wall = {}
@@ -183,6 +185,7 @@ def run_study(
         run,
         seed=config.seed,
         variant=chosen,
+        inputs=inputs,
         outputs=hash_files([out_dir / n for n in ["config.json", *tables, *plots]], out_dir),
         study="detectability",
         camera_profile=config.camera.name,
