@@ -11,16 +11,13 @@ def variant():
 
 
 @pytest.fixture(scope="session")
-def rendered_pair(tmp_path_factory, variant):
-    """A rendered dataset of two short samples: a branch at 100 mm (between whiskers 8 and 9)
-    and its no-branch twin. Rendered once per session (about 15 s)."""
-    if variant.startswith("scalar"):
-        pytest.skip("frame rendering needs a JIT variant")
+def pair_config():
+    """The config of :func:`rendered_pair`: two short samples, a branch at 100 mm (between
+    whiskers 8 and 9) and its no-branch twin, on the ideal camera."""
     from bench.dataset.config import DatasetConfig
-    from bench.dataset.generate import run_dataset
     from scenes.profile import load_profile
 
-    config = DatasetConfig(
+    return DatasetConfig(
         camera=load_profile("ideal"),  # pipeline tests on exact pixels, not the twin
         foliage=("soft",),
         distances=("intermediate",),
@@ -29,7 +26,16 @@ def rendered_pair(tmp_path_factory, variant):
         lightings=("lab",),
         passes=1,
     )
+
+
+@pytest.fixture(scope="session")
+def rendered_pair(tmp_path_factory, variant, pair_config):
+    """The dataset of :func:`pair_config`, rendered once per session (about 15 s)."""
+    if variant.startswith("scalar"):
+        pytest.skip("frame rendering needs a JIT variant")
+    from bench.dataset.generate import run_dataset
+
     out = tmp_path_factory.mktemp("pair")
-    run_dataset(config, out, variant=variant, progress=False)
-    assert (out / config.samples()[1].sample_id).name == "soft-intermediate-100-outdoor-lab"
+    run_dataset(pair_config, out, variant=variant, progress=False)
+    assert (out / pair_config.samples()[1].sample_id).name == "soft-intermediate-100-outdoor-lab"
     return out

@@ -187,10 +187,10 @@ def _dead_pid() -> int:
 
 
 @pytest.mark.slow
-def test_a_killed_runs_temporary_files_are_cleaned_by_the_next_run(data, variant) -> None:
-    from bench.dataset.config import DatasetConfig
+def test_a_killed_runs_temporary_files_are_cleaned_by_the_next_run(
+    data, variant, pair_config
+) -> None:
     from bench.dataset.generate import run_dataset
-    from scenes.profile import load_profile
 
     dead = data / BRANCH / f".video.mp4.{_dead_pid()}.tmp-k1lled.mp4"
     dead.write_bytes(b"half a video")
@@ -198,16 +198,8 @@ def test_a_killed_runs_temporary_files_are_cleaned_by_the_next_run(data, variant
     try:
         live = data / f".manifest.json.{live_child.pid}.tmp-busy.json"
         live.write_bytes(b"another run is writing this")
-        config = DatasetConfig(  # the rendered pair's own config: every sample is skipped
-            camera=load_profile("ideal"),
-            foliage=("soft",),
-            distances=("intermediate",),
-            branches=((), (100.0,)),
-            protocols=("outdoor",),
-            lightings=("lab",),
-            passes=1,
-        )
-        manifest = run_dataset(config, data, variant=variant, progress=False)
+        # the rendered pair's own config: every sample is skipped
+        manifest = run_dataset(pair_config, data, variant=variant, progress=False)
         assert manifest["skipped"] == 2
         assert not dead.exists() and live.exists()
     finally:

@@ -17,8 +17,8 @@ import cv2
 import numpy as np
 
 from bench.common.atomic import write_bytes, write_json
-from bench.common.manifest import RunClock, build_manifest, claim, hash_files, write_manifest
-from bench.dataset.config import DatasetConfig, DatasetConfigError
+from bench.common.manifest import RunClock, build_manifest, claim_out, hash_files, write_manifest
+from bench.dataset.config import DatasetConfig
 from bench.dataset.sample import sample_recorder, simulate_sample
 from bench.evaluate.speed import pick_sample
 from pipeline.detect import DetectorConfig, detect_markers
@@ -64,14 +64,11 @@ def bench_dataset(
 
     With ``out_dir``, also write the figures (``bench.json``) and a still of the timed frame
     with the largest deflection, ground truth drawn (``still.png``), and ``manifest.json``; the
-    folder is claimed before any work (DatasetConfigError on ``out`` if another command's).
+    folder is claimed before any work (FieldError on ``out`` if another command's).
     """
     clock = RunClock()
     if out_dir is not None:
-        try:
-            claim(out_dir, "bench-dataset")
-        except ValueError as exc:
-            raise DatasetConfigError("out", str(exc)) from None
+        claim_out(out_dir, "bench-dataset")
     chosen = init_worker(variant)
     sample = pick_sample(config)
     sim = simulate_sample(config, sample)

@@ -17,13 +17,12 @@ from pathlib import Path
 import cv2
 
 from bench.common.atomic import write_json
-from bench.common.manifest import RunClock, build_manifest, claim, hash_files, write_manifest
+from bench.common.manifest import RunClock, build_manifest, claim_out, hash_files, write_manifest
 from bench.dataset.config import DatasetConfig
 from bench.evaluate.score import score_markers
 from bench.evaluate.speed import SPEED_SAMPLE, full_frames, one_opencv_thread, time_pipeline
 from pipeline.presets import PipelineConfig
 from renderers.variant import init_worker
-from scenes.validation import FieldError
 
 #: frames/s each preset should reach (the issue's targets); others have none.
 TARGET_FPS = {"paper": 15.0, "fast": 100.0}
@@ -44,10 +43,7 @@ def bench_pipeline(
     """
     clock = RunClock()
     if out is not None:
-        try:
-            claim(out, "bench-pipeline")
-        except ValueError as exc:
-            raise FieldError("out", str(exc)) from None
+        claim_out(out, "bench-pipeline")
     init_worker(variant)
     images, labels = full_frames(config, frames)
     with one_opencv_thread():

@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from bench.common.atomic import check_writable, clean_stale, write_json
+from scenes.validation import FieldError
 
 SCHEMA = 1
 MANIFEST = "manifest.json"
@@ -107,6 +108,14 @@ def claim(folder: Path, kind: str) -> dict | None:
     if folder.is_dir():
         clean_stale(folder)
     return existing
+
+
+def claim_out(folder: Path, kind: str) -> dict | None:
+    """:func:`claim` for a command's ``--out``: a refusal is a FieldError on ``out``."""
+    try:
+        return claim(folder, kind)
+    except ValueError as exc:
+        raise FieldError("out", str(exc)) from None
 
 
 class RunClock:
