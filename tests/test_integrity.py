@@ -9,6 +9,7 @@ import os
 import shutil
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pandas as pd
@@ -232,3 +233,27 @@ def test_atomic_temporary_names_carry_the_writers_pid(tmp_path) -> None:
         tmp.write_bytes(b"x")
         assert clean_stale(tmp_path) == []  # this process is alive: its file stays
     assert (tmp_path / "a.parquet").read_bytes() == b"x"
+
+
+def test_a_zombie_writers_temporary_file_is_stale(tmp_path) -> None:
+    """A killed worker whose parent died too may stay a zombie (nobody reaps it): it writes
+    nothing more, so its temporary files go, while a running process's stay."""
+    from bench.common.atomic import clean_stale
+
+    zombie = subprocess.Popen([sys.executable, "-c", "pass"])
+    running = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    try:
+        deadline = time.monotonic() + 10
+        stat = Path(f"/proc/{zombie.pid}/stat")
+        while stat.read_text().rsplit(")", 1)[1].split()[0] != "Z":  # exited, not reaped
+            assert time.monotonic() < deadline
+            time.sleep(0.01)
+        stale = tmp_path / f".a.parquet.{zombie.pid}.tmp-z.parquet"
+        busy = tmp_path / f".b.parquet.{running.pid}.tmp-r.parquet"
+        stale.write_bytes(b"half")
+        busy.write_bytes(b"half")
+        assert clean_stale(tmp_path) == [stale] and busy.exists()
+    finally:
+        running.kill()
+        running.wait()
+        zombie.wait()

@@ -56,6 +56,8 @@ def clean_stale(folder: Path) -> list[Path]:
 
 
 def _alive(pid: int) -> bool:
+    """Whether ``pid`` runs; a zombie (killed, not yet reaped: its parent was killed too, and
+    a container's init may never reap it) writes nothing more, so it counts as dead."""
     if pid == os.getpid():
         return True
     try:
@@ -64,7 +66,11 @@ def _alive(pid: int) -> bool:
         return False
     except PermissionError:  # someone else's process
         return True
-    return True
+    try:  # Linux: the state letter follows the parenthesized command name
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except (OSError, IndexError):
+        return True
+    return state not in ("Z", "X")
 
 
 def _umask() -> int:
