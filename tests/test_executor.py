@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from bench.common.executor import TaskPool, run_tasks
+from bench.common.executor import TaskPool
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -32,7 +32,8 @@ def test_in_process_every_task_gets_the_one_context():
 
 
 def test_without_setup_the_context_is_none():
-    results = list(run_tasks(lambda n, context: (n, context), [1, 2], progress=False))
+    with TaskPool() as pool:
+        results = list(pool.map(lambda n, context: (n, context), [1, 2], progress=False))
     assert results == [(1, None), (2, None)]
 
 

@@ -222,6 +222,17 @@ CASES: list[tuple[str, str]] = [
     ("compare {fx}/nodataset --seeds=100000000", r"--seeds.*would take.*limit \d+"),
     ("compare {fx}/nodataset --pipelines=fast,fast", r"--pipelines.*twice"),
     ("compare {fx}/nodataset --variant=gpu", r"--variant.*invalid choice"),
+    # --- executors: a bad or unreachable Dask scheduler is refused before any work
+    (f"{S} --executor=threads", r"--executor.*invalid choice"),
+    (f"{S} --scheduler=localhost:8786", r"--scheduler.*must be tcp://HOST:PORT"),
+    (f"{S} --scheduler=tcp://host:99999", r"--scheduler.*PORT in 1\.\.65535"),
+    (f"{S} --executor=pool --scheduler=tcp://127.0.0.1:1", r"--scheduler.*--executor dask"),
+    ("dataset --executor=inline --scheduler=tcp://127.0.0.1:1", r"--scheduler.*--executor dask"),
+    ("dataset --scheduler=tcp://127.0.0.1:1", r"--scheduler.*no scheduler answers"),
+    ("score {fx}/nodataset --scheduler=tcp://127.0.0.1:1", r"--scheduler.*no scheduler"),
+    ("score {fx}/nodataset --workers=0", r"--workers.*>= 1"),
+    ("compare {fx}/nodataset --scheduler=http://127.0.0.1:1", r"--scheduler.*tcp://HOST:PORT"),
+    ("compare {fx}/nodataset --workers=100000", r"--workers.*limit \d+"),
     # --- camera
     ("camera show nosuch", r"CAMERA.*neither a shipped profile"),
     ("camera show {fx}/binary.json", r"CAMERA.*not valid JSON"),

@@ -8,9 +8,12 @@ from __future__ import annotations
 
 import argparse
 import math
+import re
+import socket
 from pathlib import Path
 
 from bench.common.atomic import check_writable
+from bench.common.executor import CONNECT_TIMEOUT_S, EXECUTORS
 from scenes.validation import MAX_SEED, FieldError
 
 
@@ -98,3 +101,50 @@ def check_out_file(path: Path | str, field: str = "out") -> Path:
     except ValueError as exc:
         raise FieldError(field, str(exc)) from None
     return path
+
+
+def add_executor_options(p: argparse.ArgumentParser) -> None:
+    """``--executor`` and ``--scheduler``: where the command's tasks run (not its outputs)."""
+    p.add_argument(
+        "--executor",
+        choices=EXECUTORS,
+        help="inline (this process), pool (local worker processes; --workers 1 is inline) or "
+        "dask (a LocalCluster of --workers processes) (default pool; dask with --scheduler)",
+    )
+    p.add_argument(
+        "--scheduler",
+        metavar="tcp://HOST:PORT",
+        help="a running Dask scheduler (dask scheduler) whose workers run the tasks; implies "
+        "--executor dask (README: Running on more machines)",
+    )
+
+
+_SCHEDULER = re.compile(r"tcp://(?P<host>[A-Za-z0-9.-]+|\[[0-9A-Fa-f:]+\]):(?P<port>[0-9]{1,5})")
+
+
+def check_executor(executor: str | None, scheduler: str | None) -> str:
+    """The executor the options name; a ``--scheduler`` must be well formed and answer.
+
+    FieldError naming the option otherwise, before any work: a scheduler that does not accept
+    a connection within :data:`CONNECT_TIMEOUT_S` is reported, not waited on.
+    """
+    if scheduler is None:
+        return executor or "pool"
+    if executor not in (None, "dask"):
+        raise FieldError("scheduler", f"needs --executor dask, not --executor {executor}")
+    match = _SCHEDULER.fullmatch(scheduler)
+    if match is None or not 1 <= int(match["port"]) <= 65535:
+        raise FieldError(
+            "scheduler", f"{scheduler!r}: must be tcp://HOST:PORT with PORT in 1..65535"
+        )
+    host = match["host"].strip("[]")
+    try:
+        socket.create_connection((host, int(match["port"])), CONNECT_TIMEOUT_S).close()
+    except OSError as exc:
+        reason = exc.strerror or type(exc).__name__
+        raise FieldError(
+            "scheduler",
+            f"{scheduler}: no scheduler answers ({reason}; waited up to {CONNECT_TIMEOUT_S} s); "
+            "start one with `dask scheduler`",
+        ) from None
+    return "dask"

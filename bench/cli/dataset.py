@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 
 from bench.cli import limits
-from bench.cli.args import check_out_folder, distinct, name_list, seed
+from bench.cli.args import check_executor, check_out_folder, distinct, name_list, seed
 from bench.common.manifest import input_digests
 from bench.dataset.config import (
     DEFAULT_BRANCHES,
@@ -45,6 +45,8 @@ OPTION_OF_FIELD = {
     "marker_spp": "--spp",
     "subframes": "--subframes",
     "workers": "--workers",
+    "executor": "--executor",
+    "scheduler": "--scheduler",
     "out": "--out",
     "seed": "--seed",
     "dataset_grid": "--foliage x --distance x --branches x --protocol x --lighting",
@@ -172,13 +174,20 @@ def cmd_dataset(args: argparse.Namespace) -> int:
     config = dataset_config(args)
     out = check_out_folder(args.out or ("data/quick" if args.quick else "data/default"))
     limits.check_dataset(config, args.workers)
+    executor = check_executor(args.executor, args.scheduler)
     args.kept = (
         f"finished samples are kept in {out}/<sample id>/ (each verified by its sample.json); "
         "rerun the same command to resume"
     )
     camera_file = profile_path(args.camera or DEFAULT_PROFILE)
     manifest = run_dataset(
-        config, out, args.variant, args.workers, inputs=input_digests([camera_file])
+        config,
+        out,
+        args.variant,
+        args.workers,
+        inputs=input_digests([camera_file]),
+        executor=executor,
+        scheduler=args.scheduler,
     )
     rate = manifest["frames_per_s"]
     print(

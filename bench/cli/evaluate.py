@@ -10,7 +10,7 @@ import sys
 from pathlib import Path
 
 from bench.cli import limits
-from bench.cli.args import check_out_folder, name_list
+from bench.cli.args import add_executor_options, check_executor, check_out_folder, name_list
 from pipeline.presets import CHOICES, PRESETS, PipelineConfig, get_pipeline
 from renderers.variant import VARIANTS
 from scenes.validation import FieldError
@@ -107,6 +107,18 @@ def add_score_options(p: argparse.ArgumentParser) -> None:
         help=VARIANT_HELP + " (default paper)",
     )
     p.add_argument("--out", type=Path, help="output folder (default <dataset>/scores/<pipeline>)")
+    _add_workers_options(p, "one sample each")
+
+
+def _add_workers_options(p: argparse.ArgumentParser, task: str) -> None:
+    p.add_argument("--workers", type=int, default=1, help=f"worker processes, {task} (default 1)")
+    add_executor_options(p)
+
+
+def _check_workers(args: argparse.Namespace) -> str:
+    """The executor; FieldError on --workers, --executor or --scheduler."""
+    limits.check_workers("workers", args.workers)
+    return check_executor(args.executor, args.scheduler)
 
 
 def cmd_score(args: argparse.Namespace) -> int:
@@ -121,14 +133,17 @@ def cmd_score(args: argparse.Namespace) -> int:
     out = args.out or args.dataset / "scores" / args.pipeline.folder_name
     try:
         check_out_folder(out)
+        executor = _check_workers(args)
     except FieldError as exc:
-        return fail(f"--out: {exc.detail}")
+        return fail(f"--{exc.field}: {exc.detail}")
     args.kept = (
         f"samples scored so far are kept in {out}/<sample id>/; samples.csv is written at the "
         "end: rerun the same command"
     )
     try:
-        table = score_dataset(args.dataset, args.pipeline, out)
+        table = score_dataset(
+            args.dataset, args.pipeline, out, None, args.workers, executor, args.scheduler
+        )
     except (ValueError, FileNotFoundError) as exc:
         return fail(str(exc))
     correct = (table["outcome"] == "correct").mean()
@@ -167,6 +182,7 @@ def add_compare_options(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--variant", choices=VARIANTS, help="Mitsuba variant (default: the fastest available)"
     )
+    _add_workers_options(p, "one sample or sweep render each")
 
 
 def _sweep_camera(option: str | None, dataset: Path):
@@ -205,6 +221,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
         check_out_folder(args.dataset / "scores", "dataset")  # each variant's scores go there
         check_out_folder(out)
         limits.check_sweep(sweep, len(args.pipelines))
+        executor = _check_workers(args)
     except FieldError as exc:
         return fail(f"{'DATASET' if exc.field == 'dataset' else '--' + exc.field}: {exc.detail}")
     args.kept = (
@@ -215,7 +232,16 @@ def cmd_compare(args: argparse.Namespace) -> int:
         camera = _sweep_camera(args.camera, args.dataset)
         if camera is not None:
             sweep = dataclasses.replace(sweep, camera=camera)
-        summary = run_compare(args.dataset, args.pipelines, out, sweep, variant=args.variant)
+        summary = run_compare(
+            args.dataset,
+            args.pipelines,
+            out,
+            sweep,
+            variant=args.variant,
+            workers=args.workers,
+            executor=executor,
+            scheduler=args.scheduler,
+        )
     except (ValueError, FileNotFoundError) as exc:
         return fail(str(exc))
     for row in summary.itertuples():

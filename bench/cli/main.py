@@ -13,7 +13,13 @@ import traceback
 from pathlib import Path
 
 from bench.cli import limits
-from bench.cli.args import check_out_folder, float_list, seed
+from bench.cli.args import (
+    add_executor_options,
+    check_executor,
+    check_out_folder,
+    float_list,
+    seed,
+)
 from bench.cli.camera import add_camera_parser
 from bench.cli.dataset import OPTION_OF_FIELD as DATASET_OPTION_OF_FIELD
 from bench.cli.dataset import add_dataset_options, cmd_bench_dataset, cmd_dataset
@@ -54,6 +60,8 @@ OPTION_OF_FIELD = {
     "out": "--out",
     "variant": "--variant",
     "workers": "--workers",
+    "executor": "--executor",
+    "scheduler": "--scheduler",
     "camera": "--camera",
     "psf_scales": "--psf-scale",
     "exposure": "--exposure",
@@ -210,6 +218,7 @@ def _cmd_detectability(args: argparse.Namespace) -> int:
     out = check_out_folder(args.out if args.out is not None else default_out(config, args.quick))
     workers = limits.default_workers() if args.workers is None else args.workers
     limits.check_study(config, workers)
+    executor = check_executor(args.executor, args.scheduler)
     args.kept = f"finished cells are kept in {out / 'cells'}; rerun the same command to resume"
     manifest = run_study(
         config,
@@ -218,6 +227,8 @@ def _cmd_detectability(args: argparse.Namespace) -> int:
         workers=workers,
         save_images=args.save_images,
         inputs=input_digests([profile_path(args.camera)]),
+        executor=executor,
+        scheduler=args.scheduler,
     )
     print(
         f"wrote {out}/ ({manifest['cells_total']} cells, {manifest['cells_resumed']} resumed; "
@@ -254,6 +265,7 @@ def _parser() -> argparse.ArgumentParser:
         action="store_true",
         help="also write every 8-bit image detected on (PNG) for inspection",
     )
+    add_executor_options(study)
     study.set_defaults(func=_cmd_detectability)
     bench = sub.add_parser("bench", help="speed benchmarks (print their figures)")
     bench_sub = bench.add_subparsers(dest="benchmark", required=True, parser_class=_Parser)
@@ -293,6 +305,7 @@ def _parser() -> argparse.ArgumentParser:
         default=1,
         help="worker processes, one sample each (default 1: one sample uses every core)",
     )
+    add_executor_options(data)
     data.set_defaults(func=cmd_dataset)
     bdata = bench_sub.add_parser(
         "dataset", help="frames/s of band and full-frame rendering, and their detections"

@@ -8,7 +8,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from bench.common.executor import run_tasks
+from bench.common.executor import TaskPool, effective_executor
 from bench.common.manifest import sha256
 from bench.common.resumable import finish_run, open_run
 from bench.dataset.config import DatasetConfig, DatasetConfigError, SampleSpec
@@ -34,13 +34,17 @@ def run_dataset(
     workers: int = 1,
     progress: bool = True,
     inputs: dict[str, str] | None = None,
+    executor: str = "pool",
+    scheduler: str | None = None,
 ) -> dict:
     """Make (or finish) the dataset in ``out_dir``; return its manifest.
 
     Samples whose ``sample.json`` lists files that verify are skipped; a folder holding another
     command's output or samples made with other settings is refused (DatasetConfigError on
     ``out``) before anything is written. ``inputs`` (path: SHA-256, e.g. the camera profile's
-    file) go into the manifest.
+    file) go into the manifest. The samples run on ``executor``
+    (:class:`~bench.common.executor.TaskPool`), recorded in the manifest but not in the
+    settings: any executor resumes the folder.
     """
     out_dir = Path(out_dir)
     settings = config.settings_hash()
@@ -50,22 +54,15 @@ def run_dataset(
         todo = [s for s in samples if not sample_done(out_dir / s.sample_id, settings)]
     except ValueError as exc:
         raise DatasetConfigError("out", str(exc)) from None
-    threads = max(1, (os.cpu_count() or 1) // max(1, workers))
+    inline = effective_executor(executor, workers, scheduler) == "inline"
+    threads = None if inline else max(1, (os.cpu_count() or 1) // max(1, workers))
     chosen = init_worker(variant)
     start = time.perf_counter()
     tasks = [_SampleTask(config, s, out_dir) for s in todo]
-    new = list(
-        run_tasks(
-            _run_task,
-            tasks,
-            workers=min(workers, len(tasks)) or 1,
-            setup=init_worker,
-            setup_args=(chosen, threads if workers > 1 else None),
-            desc="samples",
-            unit="sample",
-            progress=progress,
-        )
-    )
+    pool_workers = min(workers, len(tasks)) or 1
+    with TaskPool(pool_workers, init_worker, (chosen, threads), executor, scheduler) as pool:
+        ran_on = pool.describe()
+        new = list(pool.map(_run_task, tasks, desc="samples", unit="sample", progress=progress))
     wall_s = time.perf_counter() - start
     records = [json.loads((out_dir / s.sample_id / "sample.json").read_text()) for s in samples]
     frames_new = sum(r["frames"] for r in new)
@@ -97,4 +94,5 @@ def run_dataset(
         frames_rendered=frames_new,
         frames_per_s=frames_new / wall_s if frames_new else None,
         stage_s=stage_s,
+        **ran_on,
     )

@@ -31,6 +31,7 @@ import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
 from bench.common.atomic import atomic_path, write_bytes  # noqa: E402
+from bench.common.executor import effective_executor  # noqa: E402
 from bench.common.manifest import (  # noqa: E402
     RunClock,
     build_manifest,
@@ -117,13 +118,17 @@ def run_compare(
     speed_frames: int = 30,
     speed_seconds: float = 2.0,
     variant: str | None = None,
+    workers: int = 1,
+    executor: str = "pool",
+    scheduler: str | None = None,
 ) -> pd.DataFrame:
     """Measure every variant (speed, dataset accuracy, sweeps) and write the report.
 
     Speed: the best of repeats over ``speed_frames`` full frames, run for ``speed_seconds``.
     Before any work the report folder and every variant's score folder are claimed (ValueError
     if another command's) and the dataset is verified, once (DatasetIntegrityError naming the
-    file); ``manifest.json`` is written last.
+    file); ``manifest.json`` is written last. Scoring and sweeps run their tasks on
+    ``executor`` (:class:`~bench.common.executor.TaskPool`), recorded in the manifest.
     """
     from bench.dataset.verify import verify_dataset
     from bench.evaluate.score import score_dataset
@@ -149,12 +154,14 @@ def run_compare(
         for pipeline in pipelines:
             fps, _ = time_pipeline(images, SPEED_SAMPLE, pipeline, speed_seconds)
             scores = dataset / "scores" / pipeline.folder_name
-            table = score_dataset(dataset, pipeline, scores, verified)
+            table = score_dataset(dataset, pipeline, scores, verified, workers, executor, scheduler)
             tables[pipeline.name] = table
             rows.append({**summarize(pipeline.name, table), "fps": fps})
         del images
     summary = pd.DataFrame(rows)
-    sweeps = run_sweeps(pipelines, sweep, variant=variant)
+    sweeps = run_sweeps(
+        pipelines, sweep, variant, workers=workers, executor=executor, scheduler=scheduler
+    )
     edges = boundaries(sweeps)
 
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -194,6 +201,9 @@ def run_compare(
         outputs=hash_files(written, out_dir),
         cpu_count=meta["cpu_count"],
         machine=meta["machine"],
+        executor=effective_executor(executor, workers, scheduler),
+        workers=workers,
+        scheduler=scheduler,
     )
     write_manifest(out_dir, record)
     return summary

@@ -13,6 +13,7 @@ true gap; an estimate within one gap of no true branch is a false positive. The 
 from __future__ import annotations
 
 import json
+from dataclasses import dataclass
 from pathlib import Path
 
 import matplotlib
@@ -21,7 +22,6 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
-from tqdm import tqdm  # noqa: E402
 
 from bench.common.atomic import atomic_path  # noqa: E402
 from bench.common.manifest import (  # noqa: E402
@@ -123,11 +123,83 @@ def _none_twin(record: dict) -> str | None:
     return "-".join(parts)
 
 
+@dataclass(frozen=True)
+class _SampleTask:
+    """One sample to detect on and score (an executor task: picklable, idempotent)."""
+
+    folder: Path
+    record: dict
+    config: PipelineConfig
+    out_dir: Path
+    threshold: float | None
+    video_sha256: str
+
+
+def _score_sample(task: _SampleTask, _context: None) -> tuple[dict, float | None]:
+    """The sample's row of ``samples.csv``, and its foliage threshold if it has no branch."""
+    from bench.common.video import video_info
+    from bench.evaluate.detect import run_detect
+    from pipeline.branches import foliage_threshold
+    from pipeline.deflection import NoBaselineError
+    from scenes.profile import load_profile
+
+    record, folder = task.record, task.folder
+    sample_id = record["sample_id"]
+    labels = pd.read_parquet(folder / "labels.parquet")
+    check_table(labels, LABELS, folder / "labels.parquet")
+    if video_info(folder / "video.mp4").frame_count != labels["frame"].nunique():
+        raise ValueError(f"{sample_id}: the labels do not match the video's frame count")
+    camera = load_profile(folder / "camera.json").lens  # a profile, or an old bare camera
+    common = {
+        "sample_id": sample_id,
+        "foliage": record["foliage"],
+        "distance": record["distance"],
+        "branches": "+".join(f"{b:g}" for b in record["branches_mm"]) or "none",
+        "protocol": record["protocol"]["name"],
+        "lighting": record["lighting"],
+        "true_gaps": json.dumps(record["branch_gaps"]),
+    }
+    out = task.out_dir / sample_id
+    try:
+        result = run_detect(
+            folder / "video.mp4",
+            camera,
+            task.config,
+            out,
+            task.threshold,
+            video_sha256=task.video_sha256,
+        )
+    except NoBaselineError as exc:  # flagged and reported, never scored as an answer
+        return {**common, "outcome": "refused", "refused_reason": str(exc)}, None
+    detections = pd.read_parquet(out / "detections.parquet")
+    check_table(detections, DETECTIONS, out / "detections.parquet")
+    threshold = None
+    if not record["branches_mm"]:
+        threshold = foliage_threshold(detections["deflection_mm"].to_numpy())
+    estimated = [b["gap"] for b in result["branches"]]
+    row = {
+        **common,
+        "threshold_mm": result["threshold_mm"],
+        "threshold_source": "none-sample twin"
+        if task.threshold is not None
+        else (result["threshold_source"]),
+        "estimated_gaps": json.dumps(estimated),
+        "unseen_markers": json.dumps(result["unseen_markers"]),
+        **branch_outcome(estimated, record["branch_gaps"]),
+        **score_markers(detections, labels, result["foreign_ids"]),
+        "frames_per_s": result["frames_per_s"],
+    }
+    return row, threshold
+
+
 def score_dataset(
     dataset: Path,
     config: PipelineConfig,
     out_dir: Path,
     verified: VerifiedDataset | None = None,
+    workers: int = 1,
+    executor: str = "pool",
+    scheduler: str | None = None,
 ) -> pd.DataFrame:
     """Run ``config`` on every sample and score it; write ``samples.csv`` and the grids.
 
@@ -140,71 +212,38 @@ def score_dataset(
     Before any work ``out_dir`` is claimed (ValueError if another command's) and every file of
     every sample is checked against its recorded SHA-256 (DatasetIntegrityError naming the
     file), unless ``verified`` says it was, in this command; ``manifest.json`` is written last.
+    The samples are tasks on ``executor`` (:class:`~bench.common.executor.TaskPool`): the
+    no-branch twins first, then the others with their twins' thresholds.
     """
-    from bench.common.video import video_info
-    from bench.evaluate.detect import run_detect
-    from pipeline.branches import foliage_threshold
-    from pipeline.deflection import NoBaselineError
-    from scenes.profile import load_profile
+    from bench.common.executor import TaskPool
 
     dataset, out_dir = Path(dataset), Path(out_dir)
     clock = RunClock()
     claim(out_dir, "score")
     verified = verified or verify_dataset(dataset)
     records = verified.records
-    order = sorted(records, key=lambda s: records[s]["branches_mm"] != [])  # twins first
     thresholds: dict[str, float] = {}
     rows = []
-    for sample_id in tqdm(order, desc=f"score {config.name}", unit="sample"):
-        record, folder = records[sample_id], dataset / sample_id
-        labels = pd.read_parquet(folder / "labels.parquet")
-        check_table(labels, LABELS, folder / "labels.parquet")
-        if video_info(folder / "video.mp4").frame_count != labels["frame"].nunique():
-            raise ValueError(f"{sample_id}: the labels do not match the video's frame count")
-        camera = load_profile(folder / "camera.json").lens  # a profile, or an old bare camera
-        threshold = None
-        if config.threshold == "fixed":
-            threshold = thresholds.get(_none_twin(record))
-        common = {
-            "sample_id": sample_id,
-            "foliage": record["foliage"],
-            "distance": record["distance"],
-            "branches": "+".join(f"{b:g}" for b in record["branches_mm"]) or "none",
-            "protocol": record["protocol"]["name"],
-            "lighting": record["lighting"],
-            "true_gaps": json.dumps(record["branch_gaps"]),
-        }
-        try:
-            result = run_detect(
-                folder / "video.mp4",
-                camera,
-                config,
-                out_dir / sample_id,
-                threshold,
-                video_sha256=verified.digests[f"{sample_id}/video.mp4"],
-            )
-        except NoBaselineError as exc:  # flagged and reported, never scored as an answer
-            rows.append({**common, "outcome": "refused", "refused_reason": str(exc)})
-            continue
-        detections = pd.read_parquet(out_dir / sample_id / "detections.parquet")
-        check_table(detections, DETECTIONS, out_dir / sample_id / "detections.parquet")
-        if not record["branches_mm"]:
-            thresholds[sample_id] = foliage_threshold(detections["deflection_mm"].to_numpy())
-        estimated = [b["gap"] for b in result["branches"]]
-        rows.append(
-            {
-                **common,
-                "threshold_mm": result["threshold_mm"],
-                "threshold_source": "none-sample twin"
-                if threshold is not None
-                else (result["threshold_source"]),
-                "estimated_gaps": json.dumps(estimated),
-                "unseen_markers": json.dumps(result["unseen_markers"]),
-                **branch_outcome(estimated, record["branch_gaps"]),
-                **score_markers(detections, labels, result["foreign_ids"]),
-                "frames_per_s": result["frames_per_s"],
-            }
-        )
+    with TaskPool(workers, executor=executor, scheduler=scheduler) as pool:
+        ran_on = pool.describe()
+        for twins in (True, False):  # a sample's threshold is its twin's: twins first
+            tasks = [
+                _SampleTask(
+                    dataset / sample_id,
+                    record,
+                    config,
+                    out_dir,
+                    thresholds.get(_none_twin(record)) if config.threshold == "fixed" else None,
+                    verified.digests[f"{sample_id}/video.mp4"],
+                )
+                for sample_id, record in sorted(records.items())
+                if (record["branches_mm"] == []) == twins
+            ]
+            desc = f"score {config.name}" + ("" if twins else " (branches)")
+            for row, threshold in pool.map(_score_sample, tasks, desc=desc, unit="sample"):
+                rows.append(row)
+                if threshold is not None:
+                    thresholds[row["sample_id"]] = threshold
     table = pd.DataFrame(rows).sort_values("sample_id").reset_index(drop=True)
     with atomic_path(out_dir / "samples.csv") as tmp:
         table.to_csv(tmp, index=False)
@@ -221,6 +260,7 @@ def score_dataset(
         {"pipeline": config.to_json(), "dataset": str(dataset)},
         inputs=verified.inputs(),
         outputs=hash_files(written, out_dir),
+        **ran_on,
     )
     write_manifest(out_dir, record)
     return table

@@ -57,11 +57,12 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
-from tqdm import tqdm
 
+from bench.common.executor import TaskPool, effective_executor
 from bench.common.marker_score import MarkerTruth, find_marker, score_corners
 from bench.evaluate.sweep_config import NUMERIC_AXES, SweepConfig, SweepPoint
 from bench.study.cells import CellRender, camera_images, render_cell
@@ -148,11 +149,69 @@ def score_images(
     }
 
 
+@dataclass(frozen=True)
+class _SweepTask:
+    """One render of a sweep (a seed and the points sharing its crop), scored by every pipeline."""
+
+    config: SweepConfig
+    pipelines: tuple[PipelineConfig, ...]
+    seed: int
+    group: tuple[SweepPoint, ...]
+    indices: tuple[int, ...]  # of the group's points in config.points()
+
+
+def _sweep_worker(variant: str, threads: int | None, config: SweepConfig) -> MarkerRenderer:
+    """A sweep worker's context: its renderer, built once."""
+    init_worker(variant, threads)
+    return MarkerRenderer(config.camera.lens, config.dictionary, config.marker_id, config.spp)
+
+
+def _sweep_task(task: _SweepTask, renderer: MarkerRenderer) -> list[dict]:
+    """The rows of one render: every point of the group, every pipeline."""
+    config, lens = task.config, task.config.camera.lens
+    render, radiance, rng = clean_render(config, renderer, task.group[0], task.seed)
+    origin = (render.window.x0, render.window.y0)
+    truth = MarkerTruth.of(lens, config.marker_id, config.size_mm, render.T_cam_marker)
+    rows = []
+    for index, point in zip(task.indices, task.group, strict=True):
+        profile = dataclasses.replace(
+            config.camera,
+            sensor=dataclasses.replace(config.camera.sensor, read_noise_e=point.read_noise_e),
+        )
+        irradiance = optical_image(motion_blur(radiance, point.blur_px), profile, origin)
+        images = camera_images(
+            profile,
+            irradiance,
+            origin,
+            config.images,
+            copy.deepcopy(rng),  # the same noise draw for every level sharing it
+            get_lighting(point.lighting).exposure,
+        )
+        numeric = point.axis in NUMERIC_AXES
+        for pipeline in task.pipelines:
+            row = score_images(pipeline, images, origin, truth, lens)
+            rows.append(
+                {
+                    "point": index,
+                    "axis": point.axis,
+                    "level": f"{point.level:g}" if numeric else point.level,
+                    "level_value": float(point.level) if numeric else float("nan"),
+                    "seed": task.seed,
+                    "pipeline": pipeline.name,
+                    **row,
+                }
+            )
+    return rows
+
+
 def run_sweeps(
     pipelines: list[PipelineConfig],
     config: SweepConfig,
     variant: str | None = None,
     progress: bool = True,
+    workers: int = 1,
+    executor: str = "pool",
+    scheduler: str | None = None,
 ) -> pd.DataFrame:
     """Every pipeline at every (axis, level, seed): one row each.
 
@@ -167,6 +226,7 @@ def run_sweeps(
 
     Each distinct crop is rendered once per seed (points sharing a render: the blur and noise
     levels, and the base point met on several axes) and every pipeline sees the same images.
+    Each (seed, crop) is a task on ``executor`` (:class:`~bench.common.executor.TaskPool`).
     """
     pipelines = list(pipelines)
     if not pipelines:
@@ -180,50 +240,23 @@ def run_sweeps(
         )
         for p in pipelines
     ]
-    init_worker(variant)
-    lens = config.camera.lens
-    renderer = MarkerRenderer(lens, config.dictionary, config.marker_id, config.spp)
-
+    chosen = init_worker(variant)
+    inline = effective_executor(executor, workers, scheduler) == "inline"
     points = config.points()
     point_index = {p: i for i, p in enumerate(points)}
     groups: dict[tuple, list[SweepPoint]] = {}
     for point in points:
         groups.setdefault(point.render_key, []).append(point)
-    jobs = [(seed, points) for seed in range(config.seeds) for points in groups.values()]
-
+    tasks = [
+        _SweepTask(config, tuple(pipelines), seed, tuple(g), tuple(point_index[p] for p in g))
+        for seed in range(config.seeds)
+        for g in groups.values()
+    ]
+    setup_args = (chosen, None if inline else 1, config)
     rows = []
-    for seed, group in tqdm(jobs, desc="sweep renders", unit="render", disable=not progress):
-        render, radiance, rng = clean_render(config, renderer, group[0], seed)
-        origin = (render.window.x0, render.window.y0)
-        truth = MarkerTruth.of(lens, config.marker_id, config.size_mm, render.T_cam_marker)
-        for point in group:
-            profile = dataclasses.replace(
-                config.camera,
-                sensor=dataclasses.replace(config.camera.sensor, read_noise_e=point.read_noise_e),
-            )
-            irradiance = optical_image(motion_blur(radiance, point.blur_px), profile, origin)
-            images = camera_images(
-                profile,
-                irradiance,
-                origin,
-                config.images,
-                copy.deepcopy(rng),  # the same noise draw for every level sharing it
-                get_lighting(point.lighting).exposure,
-            )
-            numeric = point.axis in NUMERIC_AXES
-            for pipeline in pipelines:
-                row = score_images(pipeline, images, origin, truth, lens)
-                rows.append(
-                    {
-                        "point": point_index[point],
-                        "axis": point.axis,
-                        "level": f"{point.level:g}" if numeric else point.level,
-                        "level_value": float(point.level) if numeric else float("nan"),
-                        "seed": seed,
-                        "pipeline": pipeline.name,
-                        **row,
-                    }
-                )
+    with TaskPool(workers, _sweep_worker, setup_args, executor, scheduler) as pool:
+        for part in pool.map(_sweep_task, tasks, "sweep renders", progress, unit="render"):
+            rows += part
     # Rows in the config's order: axis, level, then pipeline (as given) and seed.
     table = pd.DataFrame(rows)
     table["pipeline_index"] = table["pipeline"].map({n: i for i, n in enumerate(names)})

@@ -17,7 +17,7 @@ import pandas as pd
 import pyarrow.parquet as pq
 
 from bench.common.atomic import atomic_path, write_bytes, write_json
-from bench.common.executor import TaskPool
+from bench.common.executor import TaskPool, effective_executor
 from bench.common.manifest import hash_files
 from bench.common.resumable import finish_run, open_run
 from bench.study import plots as report_plots
@@ -100,13 +100,17 @@ def run_study(
     save_images: bool = False,
     progress: bool = True,
     inputs: dict[str, str] | None = None,
+    executor: str = "pool",
+    scheduler: str | None = None,
 ) -> dict:
     """Run (or resume) the study into ``out_dir`` and return its manifest.
 
     Finished cells (``cells/<key>_x<scale>.parquet``) are skipped, so rerunning an interrupted
     command continues it. A folder that holds another command's output, or cells of a study with
     a different configuration, is refused (StudyConfigError on ``out``) before anything is written.
-    ``inputs`` (path: SHA-256, e.g. the camera profile's file) go into the manifest.
+    ``inputs`` (path: SHA-256, e.g. the camera profile's file) go into the manifest. The cells
+    run on ``executor`` (:class:`~bench.common.executor.TaskPool`), recorded in the manifest but
+    not in the settings: any executor resumes the folder.
     """
     out_dir = Path(out_dir)
     wall = {}
@@ -119,7 +123,7 @@ def run_study(
     write_json(out_dir / "config.json", config_json)
 
     # --- Cells: the grid, then refinement rounds between the last passing and first failing tilt
-    threads = 1 if workers > 1 else None
+    threads = None if effective_executor(executor, workers, scheduler) == "inline" else 1
     chosen = init_worker(variant)  # recorded in the manifest; workers are given the same
     stage = {"render_s": 0.0, "optics_s": 0.0, "sensor_s": 0.0, "detect_s": 0.0}
     t_cells = time.perf_counter()
@@ -127,7 +131,9 @@ def run_study(
     done: list[tuple[Cell, float]] = []
     known: dict[tuple[Cell, float], float] = {}
     computed = rounds = 0
-    with TaskPool(workers, init_study_worker, (config, chosen, threads)) as pool:
+    setup_args = (config, chosen, threads)
+    with TaskPool(workers, init_study_worker, setup_args, executor, scheduler) as pool:
+        ran_on = pool.describe()
         while plan:
             tasks = []
             # Large markers first: they pass, and passing cells draw the most images, so the
@@ -190,7 +196,7 @@ def run_study(
         study="detectability",
         camera_profile=config.camera.name,
         psf_scales=list(config.psf_scales),
-        workers=workers,
+        **ran_on,
         cells_total=len(done),
         cells_computed=computed,
         cells_resumed=len(done) - computed,
