@@ -166,6 +166,23 @@ CASES: list[tuple[str, str]] = [
     ("bench pipeline --pipelines=paper/refine", r"--pipelines.*not CHOICE=VALUE"),
     ("bench pipeline --variant=nosuch", r"--variant.*invalid choice"),
     ("bench pipeline --out={fx}/afile", r"--out:.*is a file"),
+    ("bench render --spp=0", r"--spp.*>= 1"),
+    ("bench render --spp=nan", r"--spp.*invalid int value"),
+    ("bench render --spp=100000000", r"--spp.*GiB; limit \d+"),
+    ("bench render --threads=0", r"--threads.*allowed range is 1\.\.\d+"),
+    ("bench render --threads=100000", r"--threads.*allowed range is 1\.\.\d+"),
+    ("bench render --scene=foliage", r"--scene.*invalid choice"),
+    ("bench render --variant=nosuch", r"--variant.*invalid choice"),
+    ("bench render --out={fx}/afile", r"--out:.*is a file"),
+    # --- bench scale
+    ("bench scale --executors=", r"--executors.*at least one"),
+    ("bench scale --executors=pool,pool", r"--executors.*twice"),
+    ("bench scale --executors=mpi", r"--executors: unknown 'mpi'; choose from inline, pool, dask"),
+    ("bench scale --workers-max=0", r"--workers-max: 0: must be >= 1"),
+    ("bench scale --workers-max=100000", r"--workers-max.*limit \d+"),
+    ("bench scale --workers-max=two", r"--workers-max.*invalid int"),
+    ("bench scale --variant=nosuch", r"--variant.*invalid choice"),
+    ("bench scale --out={fx}/afile", r"--out:.*is a file"),
     # --- dataset
     ("dataset --foliage=", r"--foliage.*at least one"),
     ("dataset --foliage=soft,soft", r"--foliage.*twice"),
@@ -326,7 +343,7 @@ def test_enough_cases():
     assert len(CASES) >= 80
     for command in ("detectability", "dataset", "detect", "score", "compare", "camera show",
                     "camera project", "camera import", "lens measure", "bench detectability",
-                    "bench dataset", "bench pipeline"):  # fmt: skip
+                    "bench dataset", "bench pipeline", "bench render"):  # fmt: skip
         assert any(c.startswith(command) for c in commands), command
 
 

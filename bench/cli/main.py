@@ -34,6 +34,8 @@ from bench.cli.evaluate import (
     cmd_score,
 )
 from bench.cli.lens import add_lens_parser
+from bench.cli.render import add_bench_render_parser
+from bench.cli.scale import add_scale_options, cmd_bench_scale
 from bench.common.manifest import input_digests
 from bench.study.config import (
     BAND_PSF_SCALES,
@@ -69,6 +71,10 @@ OPTION_OF_FIELD = {
     "seed": "--seed",
     "study_grid": "--sizes x --alphas x --phis x --lighting",
     "full_frame_cells": "--full-frame-cells",
+    "executors": "--executors",
+    "workers_max": "--workers-max",
+    "threads": "--threads",
+    "scene": "--scene",
 }
 #: Frames of the traceback an internal error's bug report shows.
 BUG_REPORT_FRAMES = 4
@@ -254,6 +260,11 @@ def _cmd_bench_detectability(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_bench_scale(args: argparse.Namespace) -> int:
+    """``bench scale`` on the quick study (and the benchmark's own small dataset)."""
+    return cmd_bench_scale(args, study_config(_parser().parse_args(["detectability", "--quick"])))
+
+
 def _parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="whiskerbench", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
@@ -316,6 +327,12 @@ def _parser() -> argparse.ArgumentParser:
         "--out", help="also write bench.json and a still frame (still.png) into this folder"
     )
     bdata.set_defaults(func=cmd_bench_dataset)
+    bscale = bench_sub.add_parser(
+        "scale", help="images/s and frames/s against executor and workers, default grids' time"
+    )
+    add_scale_options(bscale)
+    bscale.set_defaults(func=_cmd_bench_scale)
+    add_bench_render_parser(bench_sub)
     add_camera_parser(sub, _Parser)
     add_lens_parser(sub, _Parser)
     return parser

@@ -1,0 +1,209 @@
+"""``whiskerbench bench render``: the project's renderer against Blender Cycles in one run.
+
+The one-marker scene (the study's marker, pose and ``sun`` preset, the prototype lens) is rendered
+by both at the same resolution (the full 2592 x 1944 frame, or a crop around the marker), samples
+per pixel, direct light only and thread count: the project as the study renders it
+(:class:`~renderers.marker_renderer.MarkerRenderer`: exact sky term, sun per sample, adaptive
+anti-aliasing) and Cycles from the same plain data (:mod:`bench.benchmarks.cycles_scene`). Each
+renders twice: the first render includes loading the scene and compiling kernels, the second is
+the per-frame cost of a scene already loaded (what a study or a dataset pays) and is the one the
+ratio and the target use. Both images go through the same noise-free camera (luminance, the
+preset's exposure, sRGB, 8 bit) and the study's detector, and are scored against the projected
+true corners, so a speed-up bought with a wrong image shows. Without ``bpy`` Cycles is skipped
+with a note and the project side is still timed.
+"""
+
+from __future__ import annotations
+
+import os
+import platform
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from bench.common.atomic import write_bytes, write_json
+from bench.common.manifest import RunClock, build_manifest, claim_out, hash_files, write_manifest
+from bench.common.marker_score import MarkerTruth, find_marker
+from bench.study.config import StudyConfig, profile_from_option
+from renderers.marker_renderer import MarkerRenderer
+from renderers.sensor import LUMINANCE_RGB, quantize
+from renderers.variant import init_worker
+from renderers.window import Window
+from scenes.lighting import get_lighting
+from scenes.marker import MarkerSpec
+from scenes.study import study_pose
+from scenes.validation import FieldError
+
+SCENES = ("marker",)
+#: The scene: the study's marker (13.2 mm) off the axis and tilted, in the sun, prototype lens.
+SIZE_MM, ALPHA_DEG, PHI_DEG, LIGHTING, CAMERA = 13.2, 30.0, 20.0, "sun", "prototype"
+#: The issue's target: the project at least this many times faster than Cycles.
+TARGET_RATIO = 10.0
+
+
+def camera_image(radiance: np.ndarray, exposure: float) -> np.ndarray:
+    """A noise-free 8-bit grey image of linear RGB radiance: luminance, exposure, sRGB."""
+    return quantize((radiance @ LUMINANCE_RGB.astype(np.float32)) * np.float32(exposure), "srgb")
+
+
+def _outcome(image: np.ndarray, window: Window, config: StudyConfig, truth: MarkerTruth) -> dict:
+    lens = config.camera.lens
+    _, found = find_marker(image, config.detector, (window.x0, window.y0), truth, lens)
+    corners = found[0] if found else None
+    error = np.linalg.norm(corners - truth.corners_px, axis=1).mean() if found else np.nan
+    return {"detected": bool(found), "corner_err_px": float(error), "corners": corners}
+
+
+def _time(render) -> tuple[np.ndarray, list[float], list[float]]:
+    """(the second render's radiance, [wall s] and [CPU s] of both renders)."""
+    walls, cpus = [], []
+    for seed in (1, 2):
+        t0, c0 = time.perf_counter(), time.process_time()
+        radiance, wall, cpu = render(seed)
+        walls.append(wall if wall is not None else time.perf_counter() - t0)
+        cpus.append(cpu if cpu is not None else time.process_time() - c0)
+    return radiance, walls, cpus
+
+
+def bench_render(
+    scene: str = "marker",
+    spp: int = 4,
+    threads: int | None = None,
+    variant: str | None = None,
+    out: Path | None = None,
+    crop: bool = False,
+    use_cycles: bool = True,
+) -> dict:
+    """Render the scene with the project and Cycles; print and return times, ratios, detections.
+
+    ``crop``: a window around the marker instead of the full frame (the tests' fast path);
+    ``use_cycles=False`` times the project only. With ``out``, also writes ``bench.json``, both
+    8-bit images and ``manifest.json`` (the folder claimed before any work).
+    """
+    if scene not in SCENES:
+        raise FieldError("scene", f"{scene!r}: choose from {', '.join(SCENES)}")
+    if spp < 1 or (threads is not None and threads < 1):
+        raise ValueError(f"spp={spp}, threads={threads}: both must be >= 1")
+    threads = threads or os.cpu_count() or 1
+    clock = RunClock()
+    if out is not None:
+        claim_out(out, "bench-render")
+    config = StudyConfig(camera=profile_from_option(CAMERA))
+    lens, lighting = config.camera.lens, get_lighting(LIGHTING)
+    T = study_pose(ALPHA_DEG, PHI_DEG, config.distance_mm)
+    truth = MarkerTruth.of(lens, config.marker_id, SIZE_MM, T)
+    chosen = init_worker(variant, threads)
+    renderer = MarkerRenderer(lens, config.dictionary, config.marker_id, spp)
+    window = renderer.crop(T, SIZE_MM, config.camera.crop_grid_px) if crop else Window.full(lens)
+    print(
+        f"render benchmark: one marker ({SIZE_MM:g} mm, alpha {ALPHA_DEG:g}, phi {PHI_DEG:g} deg, "
+        f"{config.distance_mm:g} mm) in the {LIGHTING} preset, {CAMERA} lens, {window.width}x"
+        f"{window.height} px, {spp} spp, direct light, {threads} threads ({platform.node()}, "
+        f"{os.cpu_count()} cores)"
+    )
+    rows = {}
+
+    def project(seed: int):
+        return renderer.render(LIGHTING, T, SIZE_MM, window, seed).radiance(), None, None
+
+    rows["project"] = _run("project", chosen, project, window, config, truth, lighting.exposure)
+    bpy = None
+    if use_cycles:
+        from bench.benchmarks.cycles_scene import INSTALL_HINT, CyclesMarkerScene, import_bpy
+
+        bpy = import_bpy()
+        if bpy is None:
+            print(f"  Cycles: skipped, bpy is not installed ({INSTALL_HINT})")
+    if bpy is not None:
+        marker = MarkerSpec(config.dictionary, config.marker_id, SIZE_MM)
+        cycles = CyclesMarkerScene(bpy, lens, marker, T, lighting, spp, threads)
+        name = f"Cycles {bpy.app.version_string}"
+        rows["cycles"] = _run(
+            name, "CPU", lambda _: cycles.render(window), window, config, truth, lighting.exposure
+        )
+    figures = _verdict(rows)
+    figures.update(
+        scene=scene,
+        spp=spp,
+        threads=threads,
+        window=[window.x0, window.y0, window.width, window.height],
+        node=platform.node(),
+        cpu_count=os.cpu_count(),
+    )
+    if out is not None:
+        _write(Path(out), figures, rows, clock, chosen)
+    return figures
+
+
+def _run(name, device, render, window, config, truth, exposure) -> dict:
+    """Time one renderer's two renders, detect on the second; print one line."""
+    radiance, walls, cpus = _time(render)
+    image = camera_image(radiance, exposure)
+    outcome = _outcome(image, window, config, truth)
+    seen = (
+        f"marker detected, corner error {outcome['corner_err_px']:.2f} px"
+        if outcome["detected"]
+        else "marker NOT detected"
+    )
+    print(
+        f"  {name} ({device}): first render {walls[0]:.2f} s wall / {cpus[0]:.2f} s CPU, "
+        f"then {walls[1]:.2f} s wall / {cpus[1]:.2f} s CPU; {seen}"
+    )
+    return {
+        "name": name,
+        "device": device,
+        "wall_s": walls,
+        "cpu_s": cpus,
+        "image": image,
+        **outcome,
+    }
+
+
+def _verdict(rows: dict) -> dict:
+    """Ratios Cycles / project (second renders), detection agreement, the target met or missed."""
+    figures = {
+        k: {f: v[f] for f in ("name", "device", "wall_s", "cpu_s", "detected", "corner_err_px")}
+        for k, v in rows.items()
+    }
+    if "cycles" not in rows:
+        return figures
+    p, c = rows["project"], rows["cycles"]
+    wall, cpu = c["wall_s"][1] / p["wall_s"][1], c["cpu_s"][1] / p["cpu_s"][1]
+    equal = p["detected"] == c["detected"]
+    between = (
+        float(np.linalg.norm(p["corners"] - c["corners"], axis=1).mean())
+        if p["detected"] and c["detected"]
+        else float("nan")
+    )
+    met = equal and min(wall, cpu) >= TARGET_RATIO
+    print(
+        f"  ratio Cycles / project (second renders): wall {wall:.1f}x, CPU {cpu:.1f}x; "
+        f"detection {'equal' if equal else 'DIFFERS'}"
+        + (f", corners {between:.2f} px apart" if np.isfinite(between) else "")
+        + f"; target >= {TARGET_RATIO:g}x at equal detection: {'met' if met else 'MISSED'}"
+    )
+    figures.update(
+        ratio_wall=wall,
+        ratio_cpu=cpu,
+        detection_equal=equal,
+        corners_apart_px=between,
+        target_ratio=TARGET_RATIO,
+        target_met=met,
+    )
+    return figures
+
+
+def _write(out: Path, figures: dict, rows: dict, clock: RunClock, variant: str) -> None:
+    paths = [out / "bench.json"]
+    write_json(paths[0], figures)
+    for key, row in rows.items():
+        paths.append(out / f"{key}.png")
+        write_bytes(paths[-1], cv2.imencode(".png", row["image"])[1].tobytes())
+    config = {k: figures[k] for k in ("scene", "spp", "threads", "window")}
+    record = build_manifest(
+        "bench-render", clock, config, variant=variant, outputs=hash_files(paths, out)
+    )
+    write_manifest(out, record)
+    print(f"wrote {out}/bench.json and the images detected on")
