@@ -45,6 +45,8 @@ test-fast: setup
 bench: setup
 	$(BIN)/whiskerbench bench detectability
 	$(BIN)/whiskerbench bench detectability --psf-scale $(BAND) --full-frame-cells 1
+	$(BIN)/whiskerbench bench render
+	$(BIN)/whiskerbench bench scale
 
 # The comparison's dataset: 24 outdoor samples (soft strips and dense leaves, 3 distances, no /
 # one / two branches), about 5 min to render; reruns skip what is done.
