@@ -66,7 +66,20 @@ class MotionSpec:
 
     @property
     def duration_s(self) -> float:
-        return float(self.waypoints()[0][-1])
+        """The path's end: lead-in, approach, then legs to -a and 2a per pass (closed form, so
+        a hostile ``passes`` is sized before anything is allocated)."""
+        legs_mm = self.amplitude_mm * (1 + 2 * self.passes)
+        return (
+            self.lead_in_s + self.approach_mm / self.approach_speed_mm_s + legs_mm / self.speed_mm_s
+        )
+
+    @property
+    def frame_count(self) -> float:
+        """How many frames :meth:`frame_times` gives; inf for a path beyond floats."""
+        count = self.duration_s * self.fps
+        if not math.isfinite(count) or count > 1e15:
+            return math.inf
+        return float(math.floor(count + 1e-9) + 1)
 
     @property
     def whisking_start_s(self) -> float:
@@ -75,8 +88,7 @@ class MotionSpec:
 
     def frame_times(self) -> np.ndarray:
         """(F,) frame timestamps (s): every 1/fps from 0 to the end of the path."""
-        count = int(math.floor(self.duration_s * self.fps + 1e-9)) + 1
-        return np.arange(count) / self.fps
+        return np.arange(int(self.frame_count)) / self.fps
 
     def offsets_at(self, times_s: np.ndarray) -> np.ndarray:
         """(..., 2) array offset (x, z) in mm at the given times (clamped to the path's ends)."""

@@ -19,7 +19,6 @@ from bench.common.atomic import write_json
 from bench.common.manifest import RunClock, build_manifest, claim_out, hash_files, write_manifest
 from bench.dataset.config import SAMPLE_FILES, DatasetConfig
 from bench.dataset.generate import run_dataset
-from bench.dataset.sample import sample_times
 from bench.study.config import StudyConfig
 from bench.study.run import run_study
 from renderers.variant import init_worker
@@ -52,17 +51,10 @@ def scale_rows(executors: tuple[str, ...], workers_max: int) -> list[tuple[str, 
 
 def default_dataset_frames(config: DatasetConfig | None = None) -> int:
     """Frames of every sample of ``config`` (default: the default grid), counted as the
-    simulation counts them (:func:`~bench.dataset.sample.sample_times`): nothing rendered."""
+    simulation counts them (every ``frames_step``-th frame of the path): nothing rendered."""
     config = config or DatasetConfig()
     return sum(
-        len(
-            sample_times(
-                config.motion(s.protocol, s.distance),
-                config.exposure_ms / 1000,
-                config.sampling.subframes,
-                config.frames_step,
-            )[0]
-        )
+        int(-(-config.motion(s.protocol, s.distance).frame_count // config.frames_step))
         for s in config.samples()
     )
 

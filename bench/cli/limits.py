@@ -164,17 +164,11 @@ def check_study(config, workers: int) -> None:
 
 
 def dataset_frames(config, protocol: str) -> float:
-    """Frames of one sample of ``protocol`` (after --frames-step), from the path's length alone
-    (as :meth:`scenes.motion.MotionSpec.frame_times` counts them): nothing is allocated; inf
-    beyond floats. ``config``: a :class:`bench.dataset.config.DatasetConfig`."""
-    m = config.motion(protocol)
-    legs_mm = m.amplitude_mm * (1 + 2 * m.passes)  # to -a, then each pass 2a
-    duration_s = m.lead_in_s + m.approach_mm / m.approach_speed_mm_s + legs_mm / m.speed_mm_s
-    count = duration_s * m.fps
-    if not math.isfinite(count) or count > 1e15:
-        return math.inf
-    full = math.floor(count + 1e-9) + 1
-    return float(-(-full // config.frames_step))
+    """Frames of one sample of ``protocol`` (after --frames-step), counted without allocating
+    (:attr:`scenes.motion.MotionSpec.frame_count`); inf beyond floats. ``config``: a
+    :class:`bench.dataset.config.DatasetConfig`."""
+    full = config.motion(protocol).frame_count
+    return full if math.isinf(full) else float(-(-full // config.frames_step))
 
 
 def _check_sample_memory(config, protocol: str, frames: float, workers: int) -> None:
