@@ -31,7 +31,7 @@ import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
 from bench.common.atomic import atomic_path, write_bytes  # noqa: E402
-from bench.common.executor import effective_executor  # noqa: E402
+from bench.common.executor import TaskPool, effective_executor  # noqa: E402
 from bench.common.manifest import (  # noqa: E402
     RunClock,
     build_manifest,
@@ -148,13 +148,15 @@ def run_compare(
     verified = verify_dataset(dataset)  # every file hashed once, before the speed frames
     chosen = init_worker(variant)
     t_start = time.perf_counter()
-    with one_opencv_thread():
+    # one pool scores every pipeline: a Dask cluster or worker processes start once
+    pool = TaskPool(workers, executor=executor, scheduler=scheduler)
+    with pool, one_opencv_thread():
         images, _ = full_frames(SPEED_SAMPLE, speed_frames)
         rows, tables = [], {}
         for pipeline in pipelines:
             fps, _ = time_pipeline(images, SPEED_SAMPLE, pipeline, speed_seconds)
             scores = dataset / "scores" / pipeline.folder_name
-            table = score_dataset(dataset, pipeline, scores, verified, workers, executor, scheduler)
+            table = score_dataset(dataset, pipeline, scores, verified, pool=pool)
             tables[pipeline.name] = table
             rows.append({**summarize(pipeline.name, table), "fps": fps})
         del images

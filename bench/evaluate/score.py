@@ -13,6 +13,7 @@ true gap; an estimate within one gap of no true branch is a false positive. The 
 from __future__ import annotations
 
 import json
+from contextlib import nullcontext
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -24,6 +25,7 @@ import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
 from bench.common.atomic import atomic_path  # noqa: E402
+from bench.common.executor import TaskPool  # noqa: E402
 from bench.common.manifest import (  # noqa: E402
     RunClock,
     build_manifest,
@@ -200,6 +202,7 @@ def score_dataset(
     workers: int = 1,
     executor: str = "pool",
     scheduler: str | None = None,
+    pool: TaskPool | None = None,
 ) -> pd.DataFrame:
     """Run ``config`` on every sample and score it; write ``samples.csv`` and the grids.
 
@@ -212,10 +215,10 @@ def score_dataset(
     Before any work ``out_dir`` is claimed (ValueError if another command's) and every file of
     every sample is checked against its recorded SHA-256 (DatasetIntegrityError naming the
     file), unless ``verified`` says it was, in this command; ``manifest.json`` is written last.
-    The samples are tasks on ``executor`` (:class:`~bench.common.executor.TaskPool`): the
-    no-branch twins first, then the others with their twins' thresholds.
+    The samples are tasks on ``executor`` (:class:`~bench.common.executor.TaskPool`), or on
+    ``pool`` when the caller keeps one for several pipelines (``compare``): the no-branch twins
+    first, then the others with their twins' thresholds.
     """
-    from bench.common.executor import TaskPool
 
     dataset, out_dir = Path(dataset), Path(out_dir)
     clock = RunClock()
@@ -224,7 +227,10 @@ def score_dataset(
     records = verified.records
     thresholds: dict[str, float] = {}
     rows = []
-    with TaskPool(workers, executor=executor, scheduler=scheduler) as pool:
+    # the caller's pool stays open for its next use; without one, this call's own
+    own = pool is None
+    runner = TaskPool(workers, executor=executor, scheduler=scheduler) if own else nullcontext(pool)
+    with runner as pool:
         ran_on = pool.describe()
         for twins in (True, False):  # a sample's threshold is its twin's: twins first
             tasks = [
