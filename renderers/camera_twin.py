@@ -43,6 +43,10 @@ STAGES = (
     "stream",
 )
 
+#: The optics stages that only scale each pixel: a renderer may apply them itself
+#: (:func:`pixel_gain`) and leave them out of :func:`optical_image`'s ``stages``.
+PIXEL_GAIN_STAGES = ("relative_illumination", "image_circle")
+
 _costs: dict[str, float] | None = None  # seconds per stage while stage_costs() measures
 
 
@@ -134,25 +138,41 @@ def optical_image(
     lens = profile.lens
     ri = "relative_illumination" in on and profile.relative_illumination.on
     lc = "lateral_colour" in on and profile.lateral_colour.on
-    if ri or lc or "image_circle" in on:
+    if ri or "image_circle" in on:
         theta, inside = optics.field_angles(lens, origin, shape)
-        theta_deg = np.degrees(theta)
     if ri:
         with _stage("relative_illumination"):
-            factor = profile.relative_illumination.at(theta_deg)
+            factor = profile.relative_illumination.at(np.degrees(theta))
             stack = optics.relative_illumination(stack, factor)
     if "image_circle" in on and not inside.all():
         with _stage("image_circle"):
             stack = optics.image_circle(stack, inside)
     if "psf" in on and profile.psf.on:
         with _stage("psf"):
-            stack = optics.apply_psf(stack, optics.lens_psf_field(profile.psf.at, lens, origin))
+            plan = optics.lens_psf_plan(profile.psf, lens, origin, shape)
+            if plan is not None:
+                stack = plan.apply(stack)
     if lc:
         with _stage("lateral_colour"):
-            red, blue = profile.lateral_colour.at(theta_deg)
-            centre = (lens.cx_px, lens.cy_px)
-            stack = optics.lateral_colour(stack, red, blue, centre, origin)
+            maps = optics.lateral_colour_maps(profile.lateral_colour, lens, origin, shape)
+            stack = optics.lateral_colour(stack, maps)
     return stack[0] if single else stack
+
+
+def pixel_gain(
+    profile: CameraProfile, origin_px: tuple[int, int], shape: tuple[int, int]
+) -> np.ndarray:
+    """(H, W) float32: the :data:`PIXEL_GAIN_STAGES` over a crop as one factor per pixel,
+    relative illumination times the image circle (exact: the circle is 0 or 1).
+
+    Multiplying a radiance by it equals running those stages in :func:`optical_image`, bit for
+    bit; the frame renderer applies it on the Dr.Jit side, where the pixels already are."""
+    origin = _check_origin(origin_px, shape, profile)
+    theta, inside = optics.field_angles(profile.lens, origin, tuple(shape))
+    gain = inside.astype(np.float32)
+    if profile.relative_illumination.on:
+        gain *= profile.relative_illumination.at(np.degrees(theta)).astype(np.float32)
+    return gain
 
 
 def sensor_images(
@@ -267,7 +287,9 @@ def stage_costs(
     rng = np.random.default_rng(seed)
     radiance = rng.uniform(0.05, 0.8, (*shape, 3)).astype(np.float32)
     record(radiance, profile, rng, 2, origin_px)  # warm the caches and tables
-    optics.field_angles.cache_clear()
+    optics.field_angles.cache_clear()  # the per-crop set-up counts, once per batch
+    optics.lens_psf_plan.cache_clear()
+    optics.lateral_colour_maps.cache_clear()
     _costs = {}
     try:
         record(radiance, profile, rng, n_images, origin_px)

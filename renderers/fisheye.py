@@ -22,22 +22,15 @@ import math
 from dataclasses import dataclass
 
 import cv2
-import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from renderers.fisheye_trace import CHUNK_RAYS, BlockTracer
 from renderers.mitsuba_scene import CanopyScene, MarkerScene
-from renderers.sky_irradiance import irradiance
 from renderers.window import Window
 from scenes.camera import FisheyeCamera
 from scenes.lighting import Lighting, canopy_frame
 
-#: Rays are traced in chunks of exactly this size (the last one padded): a new wavefront size
-#: compiles a new kernel (~130 ms here), one fixed size compiles once and then reuses it.
-CHUNK_RAYS = 1 << 17
-#: A crop's rays (up to 16 such chunks) go in chunks of this size instead, so that a small pass
-#: is not padded to a whole CHUNK_RAYS; a worker that renders only crops compiles one kernel.
-SMALL_CHUNK_RAYS = 1 << 14
 #: Adaptive anti-aliasing: a pixel takes every sample where its 3 x 3 neighbourhood's first-pass
 #: samples spread by more than this fraction of their light (edges); elsewhere (flat patches,
 #: the smooth sky) its first samples stand for all, within this fraction.
@@ -62,83 +55,6 @@ class RenderedWindow:
 
 def _is_jit() -> bool:
     return mi.variant() is not None and not mi.variant().startswith("scalar")
-
-
-#: Per-sample quantities traced by Mitsuba, each (n, 3) float32 (NaN position where no hit).
-TRACED = ("sky", "sun", "position", "normal", "albedo")
-
-
-def _trace_jit(
-    scene: mi.Scene,
-    integrator: mi.Integrator | None,
-    lighting: Lighting,
-    dirs: np.ndarray,
-    seed: int,
-) -> dict[str, np.ndarray]:
-    n = len(dirs)
-    ray = mi.RayDifferential3f(
-        mi.Ray3f(mi.Point3f(0.0, 0.0, 0.0), mi.Vector3f(dirs.T.astype(np.float32)))
-    )
-    si = scene.ray_intersect(ray)
-    # Lambertian surfaces are one-sided in Mitsuba: seen from behind they are black.
-    front = si.is_valid() & (dr.dot(si.sh_frame.n, -ray.d) > 0)
-    bsdf = si.bsdf(ray)
-    out = {
-        "position": dr.select(si.is_valid(), si.p, mi.Point3f(dr.nan)),
-        "normal": dr.select(front, si.sh_frame.n, 0.0),
-        "albedo": dr.select(front, bsdf.eval_diffuse_reflectance(si, front), 0.0),
-        "sun": mi.Color3f(0.0),
-        "sky": mi.Color3f(0.0),
-    }
-    if lighting.sun is not None:
-        to_sun = mi.Vector3f(lighting.sun.to_sun_cam)
-        f = bsdf.eval(mi.BSDFContext(), si, si.to_local(to_sun), front)
-        lit = front & ~scene.ray_test(si.spawn_ray(to_sun), front)
-        out["sun"] = dr.select(
-            lit, f * lighting.sun.irradiance * mi.Color3f(lighting.sun.color), 0.0
-        )
-    if integrator is not None:
-        sampler = mi.load_dict({"type": "independent"})
-        sampler.seed(seed, n)
-        out["sky"] = integrator.sample(scene, sampler, ray)[0]
-    dr.eval(*out.values())
-    return {k: v.numpy().T for k, v in out.items()}
-
-
-def _trace_scalar(
-    scene: mi.Scene,
-    integrator: mi.Integrator | None,
-    lighting: Lighting,
-    dirs: np.ndarray,
-    seed: int,
-) -> dict[str, np.ndarray]:
-    """The same computation one ray at a time, for the scalar_rgb fallback (slow)."""
-    out = {k: np.zeros((len(dirs), 3), np.float32) for k in TRACED}
-    out["position"][:] = np.nan
-    sampler = mi.load_dict({"type": "independent"})
-    sampler.seed(seed)
-    for i, d in enumerate(dirs):
-        ray = mi.RayDifferential3f(mi.Ray3f(mi.Point3f(0.0), mi.Vector3f(*map(float, d))))
-        if integrator is not None:
-            out["sky"][i] = np.array(integrator.sample(scene, sampler, ray)[0])
-            sampler.advance()
-        si = scene.ray_intersect(ray)
-        if not si.is_valid():
-            continue
-        out["position"][i] = np.array(si.p)
-        if dr.dot(si.sh_frame.n, -ray.d) <= 0:
-            continue
-        bsdf = si.bsdf(ray)
-        out["normal"][i] = np.array(si.sh_frame.n)
-        out["albedo"][i] = np.array(bsdf.eval_diffuse_reflectance(si))
-        if lighting.sun is not None:
-            to_sun = mi.Vector3f(lighting.sun.to_sun_cam)
-            if not scene.ray_test(si.spawn_ray(to_sun)):
-                f = bsdf.eval(mi.BSDFContext(), si, si.to_local(to_sun))
-                out["sun"][i] = (
-                    np.array(f) * lighting.sun.irradiance * np.asarray(lighting.sun.color)
-                )
-    return out
 
 
 SKY_METHODS = ("irradiance", "integrator")
@@ -183,8 +99,8 @@ class FisheyeRenderer:
             and side % 2 == 0
             and shadow_spp <= spp // 4  # the canopy's shadow rays start from first-pass hits
         )
-        self.integrator = mi.load_dict({"type": "direct"}) if sky == "integrator" else None
-        self._trace = _trace_jit if _is_jit() else _trace_scalar
+        integrator = mi.load_dict({"type": "direct"}) if sky == "integrator" else None
+        self._tracer = BlockTracer(camera, scene.scene, scene.lighting, integrator)
 
     def render(self, window: Window, seed: int) -> RenderedWindow:
         """Render ``window``; ``seed`` fixes the pixel jitter and Monte Carlo samples.
@@ -205,78 +121,34 @@ class FisheyeRenderer:
         shadow = np.full((h, w, len(keep), 3), np.nan, np.float32) if lighting.canopy else None
         # Row bands bound memory on full frames; a band's first pass fills about one chunk.
         rows = max(1, CHUNK_RAYS // (w * n_first))
-        counter = [0]
+        counter = 0
         for r0 in range(0, h, rows):
             band = Window(window.x0, window.y0 + r0, w, min(rows, h - r0))
             positions = band.sample_positions(s, rng)  # (bh, w, s, 2): all samples, drawn once
-            shape = (band.height, w, n_first, 3)
-            a = self._trace_points(positions[:, :, first].reshape(-1, 2), seed, counter)
-            sky_a, sun_a = a["sky"].reshape(shape), a["sun"].reshape(shape)
-            rows_here = slice(r0, r0 + band.height)
-            sky[rows_here] = sky_a.mean(axis=2)
-            sun[rows_here] = sun_a.mean(axis=2)
+            pixels = positions.reshape(-1, s, 2)
+            a = self._tracer.trace(pixels[:, first], seed + counter, shadow is not None)
+            counter += 1
+            bh = band.height
+            rows_here = slice(r0, r0 + bh)
+            sky[rows_here] = (a.sky / np.float32(n_first)).reshape(bh, w, 3)
+            sun[rows_here] = (a.sun / np.float32(n_first)).reshape(bh, w, 3)
             if len(rest):
                 # An edge between any two first-pass samples of a 3 x 3 neighbourhood flags its
                 # pixels: an edge passing between one pixel's samples and the next pixel's is
                 # caught too, not only one crossing a pixel's own samples.
-                light = (sky_a + sun_a).sum(axis=-1)
                 box = np.ones((3, 3), np.uint8)
-                hi = cv2.dilate(light.max(axis=2), box, borderType=cv2.BORDER_REPLICATE)
-                lo = cv2.erode(light.min(axis=2), box, borderType=cv2.BORDER_REPLICATE)
-                edge = hi - lo > ADAPTIVE_TOLERANCE * (np.abs(hi) + 1e-12)
-                n_edge = int(edge.sum())
-                b = self._trace_points(positions[edge][:, rest].reshape(-1, 2), seed, counter)
-                for out, part_a, key in ((sky, sky_a, "sky"), (sun, sun_a, "sun")):
-                    if not n_edge:
-                        break
-                    total = part_a[edge].sum(axis=1) + b[key].reshape(n_edge, -1, 3).sum(axis=1)
-                    out[rows_here][edge] = total / s
+                hi = cv2.dilate(a.light_max.reshape(bh, w), box, borderType=cv2.BORDER_REPLICATE)
+                lo = cv2.erode(a.light_min.reshape(bh, w), box, borderType=cv2.BORDER_REPLICATE)
+                edge = (hi - lo > ADAPTIVE_TOLERANCE * (np.abs(hi) + 1e-12)).ravel()
+                if edge.any():
+                    b = self._tracer.trace(pixels[edge][:, rest], seed + counter, False)
+                    counter += 1
+                    for out, part_a, part_b in ((sky, a.sky, b.sky), (sun, a.sun, b.sun)):
+                        flat = out[rows_here].reshape(-1, 3)  # a view of the band's rows
+                        flat[edge] = (part_a[edge] + part_b) / np.float32(s)
             if shadow is not None:
-                shadow[rows_here] = a["position"].reshape(shape)[:, :, keep]
+                shadow[rows_here] = a.position.reshape(bh, w, n_first, 3)[:, :, keep]
         return RenderedWindow(window, sky, sun, shadow)
-
-    def _trace_points(
-        self, points_px: np.ndarray, seed: int, counter: list[int]
-    ) -> dict[str, np.ndarray]:
-        """Trace rays through (n, 2) sample positions: each of :data:`TRACED`, (n, 3) float32."""
-        dirs, valid = self.camera.unproject(points_px)
-        out_all = {k: np.zeros((len(dirs), 3), np.float32) for k in TRACED}
-        out_all["position"][:] = np.nan
-        every = bool(valid.all())  # a crop inside the image circle: slices, not index lists
-        idx = np.arange(len(dirs)) if every else np.flatnonzero(valid)
-        chunk = CHUNK_RAYS if len(idx) > 16 * SMALL_CHUNK_RAYS else SMALL_CHUNK_RAYS
-        for start in range(0, len(idx), chunk):
-            end = min(start + chunk, len(idx))
-            part = slice(start, end) if every else idx[start:end]
-            n = end - start
-            out = self._trace(
-                self.scene.scene,
-                self.integrator,
-                self.scene.lighting,
-                _pad(dirs[part], chunk),
-                (seed * 7919 + counter[0]) & 0xFFFFFFFF,
-            )
-            counter[0] += 1
-            for k in TRACED:
-                out_all[k][part] = out[k][:n]
-        if self.sky == "irradiance":
-            out_all["sky"] = self._sky_radiance(dirs, valid, out_all)
-        return out_all
-
-    def _sky_radiance(
-        self, dirs: np.ndarray, valid: np.ndarray, traced: dict[str, np.ndarray]
-    ) -> np.ndarray:
-        """Exact sky term: albedo E(n) / pi on surfaces, the sky itself where rays escape."""
-        sky = self.scene.lighting.sky
-        color = np.asarray(sky.color, dtype=np.float32)
-        hit = ~np.isnan(traced["position"][:, 0])
-        lum = np.zeros(len(dirs), np.float32)
-        lit = hit & traced["albedo"].any(axis=1)
-        lum[lit] = irradiance(sky, traced["normal"][lit]) / np.pi
-        escaped = valid & ~hit
-        lum[escaped] = sky.radiance(dirs[escaped])
-        albedo = np.where(hit[:, None], traced["albedo"], 1.0)
-        return albedo * lum[:, None] * color
 
 
 def _first_pass(spp: int) -> np.ndarray:
@@ -288,8 +160,8 @@ def _first_pass(spp: int) -> np.ndarray:
 
 
 def _pad(rays: np.ndarray, chunk: int = CHUNK_RAYS) -> np.ndarray:
-    """Pad (n, 3) rays to a whole chunk (JIT variants only) with copies of the first ray."""
-    if not _is_jit() or len(rays) == chunk:
+    """Pad (n, 3) rays to a whole chunk with copies of the first ray."""
+    if len(rays) == chunk:
         return rays
     return np.concatenate([rays, np.broadcast_to(rays[:1], (chunk - len(rays), 3))])
 

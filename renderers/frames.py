@@ -43,7 +43,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import drjit as dr
@@ -52,7 +52,13 @@ import numpy as np
 import trimesh
 
 from renderers.array_scene import ArrayScene, vegetation_scene
-from renderers.camera_twin import optical_image, sensor_images
+from renderers.camera_twin import (
+    PIXEL_GAIN_STAGES,
+    STAGES,
+    optical_image,
+    pixel_gain,
+    sensor_images,
+)
 from renderers.frame_rays import RayPlan, ray_plan
 from renderers.frame_sampling import FrameSampling, marker_region
 from renderers.mitsuba_scene import CanopyScene
@@ -63,6 +69,8 @@ from scenes.camera import FisheyeCamera
 from scenes.lighting import Lighting
 from scenes.profile import CameraProfile
 
+#: The twin's stages after the per-pixel gain the renderer applies.
+_LENS_STAGES = tuple(s for s in STAGES if s not in PIXEL_GAIN_STAGES)
 SHADOW_EPS_MM = 0.02  # shadow rays start this far off the surface (float32 at ~300 mm: 3e-5)
 
 
@@ -95,10 +103,14 @@ class FrameRenderer:
         seed: int,
         angles_rad: np.ndarray | None = None,
         block_px: int = 1,
+        pixel_gain: Callable[[Window], np.ndarray] | None = None,
     ) -> None:
         """``angles_rad`` (..., n, 2): every deflection the frames will show, to fit the band
         to them (:func:`marker_region`); None fits it to any deflection. ``block_px``: the block
-        grid (of the camera's stream) the band and zone are aligned to."""
+        grid (of the camera's stream) the band and zone are aligned to. ``pixel_gain``: maps the
+        region to a per-pixel factor (H, W) float32 that every frame is multiplied by on the
+        Dr.Jit side, with the average over each pixel's samples (the camera twin's per-pixel
+        optics, :func:`renderers.camera_twin.pixel_gain`); None: 1."""
         if mi.variant() is None or mi.variant().startswith("scalar"):
             raise RuntimeError(
                 f"frame rendering needs a JIT variant (llvm_ad_rgb or cuda_ad_rgb), not "
@@ -118,6 +130,12 @@ class FrameRenderer:
         self.inside = self._count > 0
         self._batches = [self._batch(plan) for plan in plans]
         self._setup_shading()
+        # Per pixel: its sample count (1 where it has none: its sum is 0) and gain, read by
+        # each channel of the interleaved (H, W, 3) sum.
+        self._divisor = mi.Float(np.maximum(self._count, 1).ravel().astype(np.float32))
+        gain = None if pixel_gain is None else pixel_gain(self.region)
+        self._gain = None if gain is None else mi.Float(np.asarray(gain, np.float32).ravel())
+        self._channel_pixel = dr.arange(mi.UInt32, self.region.height * self.region.width * 3) // 3
 
     @property
     def rays_per_frame(self) -> int:
@@ -151,7 +169,8 @@ class FrameRenderer:
             )
 
     def render(self, angles_rad: np.ndarray, offsets_mm: np.ndarray) -> np.ndarray:
-        """Linear RGB radiance (H, W, 3) float32 of the region for one frame.
+        """Linear RGB radiance (H, W, 3) float32 of the region for one frame: each pixel's
+        mean over its samples, times its ``pixel_gain``.
 
         ``angles_rad`` (subframes, n, 2) and ``offsets_mm`` (subframes, 2): the whiskers'
         deflections and the array's (x, z) offset in the vegetation frame at each time sample.
@@ -172,9 +191,10 @@ class FrameRenderer:
             for i in range(3):  # interleaved: (H, W, 3) once reshaped
                 dr.scatter_reduce(dr.ReduceOp.Add, total, rgb[i], batch.pixel * 3 + i)
             dr.eval(total)  # before the next time sample moves the array
-        out = total.numpy().reshape(*self.region.shape, 3)
-        count = self._count[..., None]
-        return np.divide(out, count, out=np.zeros_like(out), where=count > 0)
+        total /= dr.gather(mi.Float, self._divisor, self._channel_pixel)
+        if self._gain is not None:
+            total *= dr.gather(mi.Float, self._gain, self._channel_pixel)
+        return total.numpy().reshape(*self.region.shape, 3)
 
     def _shade(self, batch: _Batch, shift: mi.Vector3f) -> mi.Color3f:
         """RGB radiance of each ray: nearest of the array and the vegetation, lit by sky and
@@ -264,6 +284,7 @@ class FrameRecorder:
             render_seed,
             angles_rad=angles_rad,
             block_px=profile.stream.block_px,
+            pixel_gain=lambda region: pixel_gain(profile, (region.x0, region.y0), region.shape),
         )
         self.angles_rad, self.offsets_mm = angles_rad, offsets_mm
         self.exposure = exposure * lighting.exposure
@@ -273,7 +294,8 @@ class FrameRecorder:
         self.render_s = self.optics_s = self.sensor_s = 0.0
 
     def radiance(self, f: int) -> np.ndarray:
-        """Clean linear RGB radiance of frame ``f`` over the renderer's region."""
+        """Clean linear RGB radiance of frame ``f`` over the renderer's region, times the
+        twin's per-pixel optics (:data:`~renderers.camera_twin.PIXEL_GAIN_STAGES`)."""
         k = self.renderer.sampling.subframes
         return self.renderer.render(self.angles_rad[f, :k], self.offsets_mm[f])
 
@@ -292,7 +314,7 @@ class FrameRecorder:
         radiance = self.radiance(f)
         t1 = time.perf_counter()
         lens, region, band = self.profile.lens, self.renderer.region, self.renderer.band
-        irradiance = optical_image(radiance, self.profile, (region.x0, region.y0))
+        irradiance = optical_image(radiance, self.profile, (region.x0, region.y0), _LENS_STAGES)
         t2 = time.perf_counter()
         image = np.zeros((lens.height_px, lens.width_px), np.uint8)
         if region != band:

@@ -19,6 +19,7 @@ from functools import lru_cache
 
 import numpy as np
 
+from scenes.array_ops import NUMPY
 from scenes.lighting import Sky
 
 _SKY_GRID = (128, 256)  # quadrature directions (rows over polar angle, cols over azimuth)
@@ -57,19 +58,39 @@ def irradiance_table(sky: Sky) -> np.ndarray:
     return irradiance_direct(sky, normals.reshape(-1, 3)).reshape(_TABLE)
 
 
-def irradiance(sky: Sky, normals: np.ndarray) -> np.ndarray:
-    """E(n) for (..., 3) unit normals, bilinear in the tabulated (polar, azimuth) grid."""
+def irradiance(sky: Sky, normals, xp=NUMPY):
+    """E(n) for (..., 3) unit normals, bilinear in the tabulated (polar, azimuth) grid.
+
+    ``normals`` may also be the tuple of their x, y and z arrays in another array namespace
+    ``xp`` (:mod:`scenes.array_ops`): the renderer's kernels look E up with this same code."""
     rows, cols = _TABLE
-    n = np.asarray(normals, dtype=float)
-    theta = np.arccos(np.clip(n[..., 2], -1.0, 1.0))
-    phi = np.mod(np.arctan2(n[..., 1], n[..., 0]), 2 * math.pi)
-    r = np.clip(theta * rows / math.pi - 0.5, 0.0, rows - 1.0)
-    c = phi * cols / (2 * math.pi) - 0.5
-    r0 = np.minimum(np.floor(r).astype(int), rows - 2)
-    c0 = np.floor(c).astype(int)
+    if isinstance(normals, tuple | list):
+        nx, ny, nz = (xp.asarray(c) for c in normals)
+    else:
+        n = np.asarray(normals, dtype=float)
+        nx, ny, nz = n[..., 0], n[..., 1], n[..., 2]
+    theta = xp.acos(xp.clip(nz, -1.0, 1.0))
+    phi = xp.atan2(ny, nx)
+    phi = xp.where(phi < 0.0, phi + 2 * math.pi, phi)
+    r = xp.clip(theta * (rows / math.pi) - 0.5, 0.0, rows - 1.0)
+    c = phi * (cols / (2 * math.pi)) - 0.5
+    r0 = xp.minimum(xp.floor(r), rows - 2.0)
+    c0 = xp.floor(c)
     fr, fc = r - r0, c - c0
-    table = irradiance_table(sky)
-    c0w, c1w = np.mod(c0, cols), np.mod(c0 + 1, cols)  # azimuth wraps around
-    top = table[r0, c0w] * (1 - fc) + table[r0, c1w] * fc
-    bottom = table[r0 + 1, c0w] * (1 - fc) + table[r0 + 1, c1w] * fc
+    table = irradiance_table(sky).ravel()
+    c0w = xp.where(c0 < 0.0, c0 + cols, c0)  # azimuth wraps around (c0 >= -1)
+    c1w = xp.where(c0 + 1.0 >= cols, c0 + 1.0 - cols, c0 + 1.0)
+
+    def at(row, col):
+        return xp.gather(table, row * cols + col)
+
+    top = at(r0, c0w) * (1 - fc) + at(r0, c1w) * fc
+    bottom = at(r0 + 1.0, c0w) * (1 - fc) + at(r0 + 1.0, c1w) * fc
     return top * (1 - fr) + bottom * fr
+
+
+def sky_luminance(sky: Sky, valid, hit, lit, normal_xyz: tuple, dir_xyz: tuple, xp=NUMPY):
+    """The sky's light per sample before albedo and colour: E(n) / pi on lit surfaces (``lit``:
+    a front face with albedo), the sky itself along valid rays that hit nothing, else 0."""
+    lum = xp.where(lit, irradiance(sky, normal_xyz, xp) / math.pi, 0.0)
+    return xp.where(valid & ~hit, sky.radiance_xyz(*dir_xyz, xp), lum)

@@ -57,6 +57,7 @@ import cv2
 import numpy as np
 
 from scenes import lens_models
+from scenes.array_ops import NUMPY
 from scenes.lens_models import MODELS
 
 OPENCV_FIT_MAX_DEG = 89.0  # cv2.fisheye computes theta = atan(r / z): it breaks at 90 degrees
@@ -121,21 +122,28 @@ class FisheyeCamera:
     def theta_valid_max_deg(self) -> float:
         return math.degrees(self.theta_valid_max_rad)
 
-    def distort(self, theta_rad: np.ndarray) -> np.ndarray:
-        """Normalized image radius d(theta) for ray angles up to theta_max."""
-        top = min(self.theta_max_rad, self.theta_valid_max_rad)
-        return lens_models.radius_of_theta(self.model, self.params, theta_rad, top)
+    def distort(self, theta_rad: np.ndarray, xp=NUMPY) -> np.ndarray:
+        """Normalized image radius d(theta) for ray angles up to theta_max.
 
-    def undistort(self, d: np.ndarray) -> np.ndarray:
+        ``xp`` here and below: the array namespace (:mod:`scenes.array_ops`), NumPy by default;
+        the renderer passes Dr.Jit's, so one implementation serves labels and rays."""
+        top = min(self.theta_max_rad, self.theta_valid_max_rad)
+        return lens_models.radius_of_theta(self.model, self.params, theta_rad, top, xp)
+
+    def undistort(self, d: np.ndarray, xp=NUMPY) -> np.ndarray:
         """Ray angle theta for a normalized radius d: the exact inverse of :meth:`distort`.
 
         Radii beyond the model's reach give its limit ``theta_valid_max_rad``."""
-        return lens_models.theta_of_radius(self.model, self.params, d)
+        return lens_models.theta_of_radius(self.model, self.params, d, xp)
 
     def _normalized(self, pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """m = A^-1 (pixel - c) for (..., 2) pixels."""
         uv = np.asarray(pixels, dtype=float)
-        u, v = uv[..., 0] - self.cx_px, uv[..., 1] - self.cy_px
+        return self._normalized_xy(uv[..., 0], uv[..., 1])
+
+    def _normalized_xy(self, x, y):
+        """m = A^-1 (pixel - c) for pixel coordinates x, y (any array namespace)."""
+        u, v = x - self.cx_px, y - self.cy_px
         if self.shear == (0.0, 0.0):
             return u / self.fx_px, v / self.fy_px
         s0, s1 = self.shear
@@ -146,35 +154,42 @@ class FisheyeCamera:
     def project(self, points_cam: np.ndarray) -> np.ndarray:
         """Project (..., 3) camera-frame points to (..., 2) pixels; NaN beyond theta_max."""
         p = np.asarray(points_cam, dtype=float)
-        rho = np.hypot(p[..., 0], p[..., 1])
-        theta = np.arctan2(rho, p[..., 2])
-        outside = (theta > self.theta_max_rad) | ((rho == 0) & (p[..., 2] <= 0))
-        d = self.distort(np.where(outside, 0.0, theta))
-        safe_rho = np.where(rho > 0, rho, 1.0)
-        scale = np.where(rho > 0, d / safe_rho, 0.0)
-        mx, my = scale * p[..., 0], scale * p[..., 1]
+        return np.stack(self.project_xyz(p[..., 0], p[..., 1], p[..., 2]), axis=-1)
+
+    def project_xyz(self, x, y, z, xp=NUMPY):
+        """:meth:`project` of points given by their coordinates: (pixel x, pixel y), NaN beyond
+        theta_max."""
+        rho = xp.hypot(x, y)
+        theta = xp.atan2(rho, z)
+        outside = (theta > self.theta_max_rad) | ((rho == 0) & (z <= 0))
+        d = self.distort(xp.where(outside, 0.0, theta), xp)
+        safe_rho = xp.where(rho > 0, rho, 1.0)
+        scale = xp.where(rho > 0, d / safe_rho, 0.0)
+        mx, my = scale * x, scale * y
         s0, s1 = self.shear
-        px = np.stack(
-            [self.fx_px * mx + s0 * my + self.cx_px, s1 * mx + self.fy_px * my + self.cy_px],
-            axis=-1,
-        )
-        px[outside] = np.nan
-        return px
+        px = self.fx_px * mx + s0 * my + self.cx_px
+        py = s1 * mx + self.fy_px * my + self.cy_px
+        return xp.where(outside, math.nan, px), xp.where(outside, math.nan, py)
 
     def unproject(self, pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Unit ray directions (..., 3) in the camera frame for (..., 2) pixels.
 
         Returns ``(directions, valid)``; ``valid`` is False outside the image circle.
         """
-        mx, my = self._normalized(pixels)
-        d = np.hypot(mx, my)
+        uv = np.asarray(pixels, dtype=float)
+        *dirs, valid = self.unproject_xy(uv[..., 0], uv[..., 1])
+        return np.stack(dirs, axis=-1), valid
+
+    def unproject_xy(self, x, y, xp=NUMPY):
+        """:meth:`unproject` of pixels given by their coordinates: (dx, dy, dz, valid)."""
+        mx, my = self._normalized_xy(x, y)
+        d = xp.hypot(mx, my)
         d_max = float(self.distort(np.array(self.theta_max_rad)))
         valid = d <= d_max * (1.0 + 1e-12)  # a ray at theta_max rounds to either side of d_max
-        theta = self.undistort(np.minimum(d, d_max))
-        safe_d = np.where(d > 0, d, 1.0)
-        scale = np.where(d > 0, np.sin(theta) / safe_d, 0.0)
-        dirs = np.stack([scale * mx, scale * my, np.cos(theta)], axis=-1)
-        return dirs, valid
+        theta = self.undistort(xp.minimum(d, d_max), xp)
+        safe_d = xp.where(d > 0, d, 1.0)
+        scale = xp.where(d > 0, xp.sin(theta) / safe_d, 0.0)
+        return scale * mx, scale * my, xp.cos(theta), valid
 
     def theta_of_pixel(self, pixels: np.ndarray) -> np.ndarray:
         """Ray angle from the optical axis (rad) for (..., 2) pixels; finite everywhere:

@@ -14,6 +14,8 @@ from typing import Any
 
 import numpy as np
 
+from scenes.array_ops import NUMPY
+
 #: Parameter names per model (``ocamcalib``: a0, a1, ... as many as given).
 PARAM_NAMES: dict[str, tuple[str, ...]] = {
     "equidistant": (),
@@ -32,9 +34,9 @@ _MAX_ITER = 100
 # --- Radial functions -------------------------------------------------------------------------
 
 
-def _poly(coeffs: tuple[float, ...], x: np.ndarray) -> np.ndarray:
+def _poly(coeffs: tuple[float, ...], x: np.ndarray, xp=NUMPY) -> np.ndarray:
     """sum_i coeffs[i] x^i (Horner)."""
-    out = np.zeros_like(x) + coeffs[-1]
+    out = xp.full_like(x, coeffs[-1])
     for c in reversed(coeffs[:-1]):
         out = out * x + c
     return out
@@ -50,49 +52,51 @@ def _kb_coeffs(params: tuple[float, ...]) -> tuple[float, ...]:
     return (0.0, 1.0, 0.0, k1, 0.0, k2, 0.0, k3, 0.0, k4)
 
 
-def _closed_radius(model: str, params: tuple[float, ...], theta: np.ndarray) -> np.ndarray:
+def _closed_radius(
+    model: str, params: tuple[float, ...], theta: np.ndarray, xp=NUMPY
+) -> np.ndarray:
     """d(theta) for the models with a closed-form projection (all but OCamCalib)."""
     if model == "equidistant":
-        return np.array(theta, dtype=float, copy=True)
+        return xp.copy(theta)
     if model == "kannala_brandt":
-        return _poly(_kb_coeffs(params), theta)
-    s, c = np.sin(theta), np.cos(theta)
-    with np.errstate(divide="ignore", invalid="ignore"):
+        return _poly(_kb_coeffs(params), theta, xp)
+    s, c = xp.sin(theta), xp.cos(theta)
+    with xp.errstate():
         if model == "double_sphere":
             xi, alpha = params
             k = xi + c
-            return s / (alpha * np.sqrt(s * s + k * k) + (1.0 - alpha) * k)
+            return s / (alpha * xp.sqrt(s * s + k * k) + (1.0 - alpha) * k)
         if model == "eucm":
             alpha, beta = params
-            return s / (alpha * np.sqrt(beta * s * s + c * c) + (1.0 - alpha) * c)
+            return s / (alpha * xp.sqrt(beta * s * s + c * c) + (1.0 - alpha) * c)
         (xi,) = params  # ucm
         return s / (c + xi)
 
 
-def _closed_theta(model: str, params: tuple[float, ...], d: np.ndarray) -> np.ndarray:
+def _closed_theta(model: str, params: tuple[float, ...], d: np.ndarray, xp=NUMPY) -> np.ndarray:
     """theta(d) for the models with a published closed-form unprojection."""
     r2 = d * d
-    with np.errstate(divide="ignore", invalid="ignore"):
+    with xp.errstate():
         if model == "double_sphere":  # Usenko et al. 2018, eq. (47)-(49)
             xi, alpha = params
             mz = (1.0 - alpha * alpha * r2) / (
-                alpha * np.sqrt(np.maximum(1.0 - (2.0 * alpha - 1.0) * r2, 0.0)) + 1.0 - alpha
+                alpha * xp.sqrt(xp.maximum(1.0 - (2.0 * alpha - 1.0) * r2, 0.0)) + 1.0 - alpha
             )
-            k = (mz * xi + np.sqrt(mz * mz + (1.0 - xi * xi) * r2)) / (mz * mz + r2)
-            return np.arctan2(k * d, k * mz - xi)
+            k = (mz * xi + xp.sqrt(mz * mz + (1.0 - xi * xi) * r2)) / (mz * mz + r2)
+            return xp.atan2(k * d, k * mz - xi)
         if model == "eucm":  # Khomutenko et al. 2016, eq. (11)
             alpha, beta = params
-            root = np.sqrt(np.maximum(1.0 - (2.0 * alpha - 1.0) * beta * r2, 0.0))
+            root = xp.sqrt(xp.maximum(1.0 - (2.0 * alpha - 1.0) * beta * r2, 0.0))
             mz = (1.0 - beta * alpha * alpha * r2) / (alpha * root + 1.0 - alpha)
-            return np.arctan2(d, mz)
+            return xp.atan2(d, mz)
         (xi,) = params  # ucm (Mei): the ray is k (m, 1) - (0, 0, xi)
-        k = (xi + np.sqrt(np.maximum(1.0 + (1.0 - xi * xi) * r2, 0.0))) / (1.0 + r2)
-        return np.arctan2(k * d, k - xi)
+        k = (xi + xp.sqrt(xp.maximum(1.0 + (1.0 - xi * xi) * r2, 0.0))) / (1.0 + r2)
+        return xp.atan2(k * d, k - xi)
 
 
-def _ocam_theta(params: tuple[float, ...], rho: np.ndarray) -> np.ndarray:
+def _ocam_theta(params: tuple[float, ...], rho: np.ndarray, xp=NUMPY) -> np.ndarray:
     """OCamCalib: angle from the forward axis of the ray (rho, -P(rho)); rho in pixels."""
-    return np.arctan2(rho, -_poly(params, rho))
+    return xp.atan2(rho, -_poly(params, rho, xp))
 
 
 @functools.lru_cache(maxsize=64)
@@ -102,9 +106,9 @@ def _ocam_fold_rho(params: tuple[float, ...]) -> float | None:
     return _first_positive_root(tuple((i - 1) * a for i, a in enumerate(params)), math.inf)
 
 
-def _ocam_dtheta(params: tuple[float, ...], rho: np.ndarray) -> np.ndarray:
-    p = _poly(params, rho)
-    return (rho * _poly(_poly_derivative(params), rho) - p) / (rho * rho + p * p)
+def _ocam_dtheta(params: tuple[float, ...], rho: np.ndarray, xp=NUMPY) -> np.ndarray:
+    p = _poly(params, rho, xp)
+    return (rho * _poly(_poly_derivative(params), rho, xp) - p) / (rho * rho + p * p)
 
 
 def _first_positive_root(coeffs: tuple[float, ...], upper: float) -> float | None:
@@ -187,29 +191,31 @@ def _valid_radius(model: str, params: tuple[float, ...], theta_valid: float) -> 
     return float(_closed_radius(model, params, np.array(theta_valid)))
 
 
-def _invert_increasing(func, dfunc, y: np.ndarray, xs: np.ndarray, fs: np.ndarray) -> np.ndarray:
+def _invert_increasing(
+    func, dfunc, y: np.ndarray, xs: np.ndarray, fs: np.ndarray, xp=NUMPY
+) -> np.ndarray:
     """x with func(x) = y for an increasing func tabulated as fs = func(xs): Newton's method
     from the table's linear interpolation, kept inside the table bracket (bisection when a step
     leaves it), run to machine precision. ``y`` is clipped to the table's range."""
-    y = np.clip(np.asarray(y, dtype=float), fs[0], fs[-1])
-    i = np.clip(np.searchsorted(fs, y), 1, len(xs) - 1)
-    lo, hi = xs[i - 1], xs[i]
-    x = np.interp(y, fs, xs)
-    tol = 4 * np.finfo(float).eps * np.maximum(np.abs(y), 1.0)  # f's own rounding
-    with np.errstate(divide="ignore", invalid="ignore"):
+    y = xp.clip(xp.asarray(y), float(fs[0]), float(fs[-1]))
+    i = xp.clip(xp.searchsorted(fs, y), 1, len(xs) - 1)
+    lo, hi = xp.gather(xs, i - 1), xp.gather(xs, i)
+    x = xp.interp(y, fs, xs)
+    tol = 4 * float(np.finfo(float).eps) * xp.maximum(xp.abs(y), 1.0)  # f's own rounding
+    with xp.errstate():
         for _ in range(_MAX_ITER):
             r = func(x) - y
-            active = np.abs(r) > tol
-            if not active.any():
+            active = xp.abs(r) > tol
+            if not xp.any(active):
                 break
-            lo = np.where(r <= 0, x, lo)
-            hi = np.where(r >= 0, x, hi)
+            lo = xp.where(r <= 0, x, lo)
+            hi = xp.where(r >= 0, x, hi)
             new = x - r / dfunc(x)
-            new = np.where((new >= lo) & (new <= hi), new, 0.5 * (lo + hi))
+            new = xp.where((new >= lo) & (new <= hi), new, 0.5 * (lo + hi))
             active &= new != x
-            if not active.any():
+            if not xp.any(active):
                 break
-            x = np.where(active, new, x)
+            x = xp.where(active, new, x)
     return x
 
 
@@ -284,33 +290,41 @@ def _cached_valid_radius(model: str, params: tuple[float, ...]) -> float:
 
 
 def radius_of_theta(
-    model: str, params: tuple[float, ...], theta_rad: np.ndarray, theta_top_rad: float
+    model: str, params: tuple[float, ...], theta_rad: np.ndarray, theta_top_rad: float, xp=NUMPY
 ) -> np.ndarray:
     """Normalized image radius d(theta) for ray angles up to ``theta_top_rad`` (the image
-    circle or the model's limit, whichever is smaller: OCamCalib's inverse is tabulated to it)."""
-    theta = np.asarray(theta_rad, dtype=float)
+    circle or the model's limit, whichever is smaller: OCamCalib's inverse is tabulated to it).
+    ``xp``: the array namespace (:mod:`scenes.array_ops`)."""
+    theta = xp.asarray(theta_rad)
     if model != "ocamcalib":
-        return _closed_radius(model, params, theta)
+        return _closed_radius(model, params, theta, xp)
     rho, th = _ocam_table(params, theta_top_rad)
     rho_of_theta = _invert_increasing(
-        lambda r: _ocam_theta(params, r), lambda r: _ocam_dtheta(params, r), theta, rho, th
+        lambda r: _ocam_theta(params, r, xp),
+        lambda r: _ocam_dtheta(params, r, xp),
+        theta,
+        rho,
+        th,
+        xp,
     )
     return rho_of_theta / -params[0]
 
 
-def theta_of_radius(model: str, params: tuple[float, ...], d: np.ndarray) -> np.ndarray:
+def theta_of_radius(model: str, params: tuple[float, ...], d: np.ndarray, xp=NUMPY) -> np.ndarray:
     """Ray angle theta for a normalized radius d: the exact inverse of :func:`radius_of_theta`.
     Radii beyond the model's reach give its limit."""
-    d = np.minimum(np.asarray(d, dtype=float), _cached_valid_radius(model, params))
+    d = xp.minimum(xp.asarray(d), _cached_valid_radius(model, params))
     if model == "equidistant":
-        return d.copy()
+        return xp.copy(d)
     if model == "ocamcalib":
-        return _ocam_theta(params, d * -params[0])
+        return _ocam_theta(params, d * -params[0], xp)
     limit = valid_limit(model, params)
     if model == "kannala_brandt":
         xs, fs = _kb_table(params, limit)
         coeffs = _kb_coeffs(params)
         deriv = _poly_derivative(coeffs)
-        return _invert_increasing(lambda t: _poly(coeffs, t), lambda t: _poly(deriv, t), d, xs, fs)
-    theta = _closed_theta(model, params, d)
-    return np.where(np.isinf(d), limit, theta)
+        return _invert_increasing(
+            lambda t: _poly(coeffs, t, xp), lambda t: _poly(deriv, t, xp), d, xs, fs, xp
+        )
+    theta = _closed_theta(model, params, d, xp)
+    return xp.where(xp.isinf(d), limit, theta)

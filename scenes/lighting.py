@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 import trimesh
 
+from scenes.array_ops import NUMPY
 from scenes.conventions import OPTICAL_AXIS_CAM, UP_CAM
 
 RGB = tuple[float, float, float]
@@ -44,12 +45,22 @@ class Sky:
 
     def radiance(self, dirs_cam: np.ndarray) -> np.ndarray:
         """(N,) luminance-like radiance seen along (N, 3) unit directions (camera frame)."""
-        up = dirs_cam @ UP_CAM
-        sky = self.horizon_radiance + (self.zenith_radiance - self.horizon_radiance) * np.clip(
-            up, 0, 1
+        d = np.asarray(dirs_cam, dtype=float)
+        return self.radiance_xyz(d[..., 0], d[..., 1], d[..., 2])
+
+    def radiance_xyz(self, x, y, z, xp=NUMPY):
+        """:meth:`radiance` of directions given by their coordinates, in the array namespace
+        ``xp`` (:mod:`scenes.array_ops`: the renderer's kernels use the same formula)."""
+        up = x * float(UP_CAM[0]) + y * float(UP_CAM[1]) + z * float(UP_CAM[2])
+        forward = (
+            x * float(OPTICAL_AXIS_CAM[0])
+            + y * float(OPTICAL_AXIS_CAM[1])
+            + z * float(OPTICAL_AXIS_CAM[2])
         )
-        base = np.where(up >= 0.0, sky, self.ground_radiance)
-        front = np.clip((dirs_cam @ OPTICAL_AXIS_CAM - self.backlight_cos_min) / 0.1, 0.0, 1.0)
+        gradient = self.zenith_radiance - self.horizon_radiance
+        sky = self.horizon_radiance + gradient * xp.clip(up, 0.0, 1.0)
+        base = xp.where(up >= 0.0, sky, self.ground_radiance)
+        front = xp.clip((forward - self.backlight_cos_min) / 0.1, 0.0, 1.0)
         return base + self.backlight_radiance * front
 
 

@@ -183,3 +183,19 @@ def test_stage_costs_names_the_stages_that_run():
     assert not {"psf", "lateral_colour", "relative_illumination", "demosaic", "sharpen"} & set(
         ideal
     )
+
+
+def test_pixel_gain_stands_in_for_its_stages():
+    # What the frame renderer does: the per-pixel stages as one factor, then the other stages;
+    # on a crop straddling the image circle, bit for bit what optical_image does alone.
+    from renderers.camera_twin import PIXEL_GAIN_STAGES, pixel_gain
+
+    origin, shape = (200, 920), (96, 80)
+    radiance = texture((2, *shape), seed=3)
+    gain = pixel_gain(BUSY, origin, shape)
+    rest = [s for s in STAGES if s not in PIXEL_GAIN_STAGES]
+    assert gain.min() == 0.0 and 0.0 < gain.max() < 1.0  # both stages act here
+    np.testing.assert_array_equal(
+        optical_image(radiance * gain[..., None], BUSY, origin, rest),
+        optical_image(radiance, BUSY, origin),
+    )

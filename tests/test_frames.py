@@ -112,3 +112,30 @@ def test_frames_are_rgb_and_the_sky_has_its_colour(renderers) -> None:
     matches = np.isclose(rgb[:150], expected, rtol=1e-3).all(axis=-1)
     assert matches[valid].mean() > 0.99
     assert np.ptp(np.asarray(sky.color)) > 0.1  # a test that could tell channels apart
+
+
+def test_pixel_gain_is_applied_per_pixel_on_the_drjit_side(variant) -> None:
+    """A renderer given a per-pixel gain returns its plain frame times that gain, to float32
+    rounding (the recorder folds the twin's relative illumination and image circle in so)."""
+    if variant.startswith("scalar"):
+        pytest.skip("frame rendering needs a JIT variant")
+    from renderers.frames import FrameRenderer
+
+    veg = build_vegetation(VegetationSpec("soft", "intermediate", (0.0,), seed=1), SPEC)
+    parts = [(p.name, p.mesh, p.albedo_rgb) for p in veg.parts]
+    sampling = FrameSampling(subframes=1, marker_spp=1, background_spp=1)
+    rng = np.random.default_rng(6)
+    gains = {}
+
+    def gain_of(region):
+        gains[region] = rng.uniform(0.0, 2.0, region.shape).astype(np.float32)
+        gains[region][:, :7] = 0.0  # an edge off, as beyond the image circle
+        return gains[region]
+
+    args = (default_camera(), SPEC, parts, get_lighting("canopy"), sampling, 5)
+    plain = FrameRenderer(*args).render(ANGLES[:1], OFFSETS[:1])
+    scaled_renderer = FrameRenderer(*args, pixel_gain=gain_of)
+    scaled = scaled_renderer.render(ANGLES[:1], OFFSETS[:1])
+    gain = gains[scaled_renderer.region][..., None]
+    np.testing.assert_allclose(scaled, plain * gain, rtol=2e-7, atol=0)
+    assert plain.std() > 0.01 and not scaled[:, :7].any()

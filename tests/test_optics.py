@@ -11,7 +11,15 @@ import numpy as np
 import pytest
 
 from renderers.camera_twin import optical_image
-from renderers.optics import gaussian_kernel
+from renderers.optics import (
+    anchor_axis,
+    anchor_spacing,
+    covariance,
+    covariance_kernel,
+    gaussian_kernel,
+    lens_psf_field,
+    lens_psf_plan,
+)
 from scenes.camera import default_camera
 from scenes.profile import CameraProfile, LateralColour, PsfTable, RelativeIllumination
 
@@ -217,3 +225,69 @@ def test_lateral_colour_moves_a_point_by_its_scale(table, red, blue):
         np.testing.assert_allclose(centroid(out[..., channel], pixels), q, atol=0.06)
         assert np.hypot(*(q - p0)) > 1.0  # the test moves the point by more than a pixel
     np.testing.assert_array_equal(out[..., 1], radiance[..., 1])
+
+
+def per_cell_psf(image: np.ndarray, psf: PsfTable, origin: tuple[int, int]) -> np.ndarray:
+    """The varying PSF as the module docstring states it, cell by cell, from scratch: each cell
+    blurred by its mean covariance's kernel, then each pixel moved to its own (bilinear)
+    covariance by the heat-equation stencil. (H, W) float64 image, float64 result."""
+    field = lens_psf_field(psf.at, LENS, origin)
+    height, width = image.shape
+    spacing = anchor_spacing(image.shape, field)
+    xs, ys = anchor_axis(width, spacing), anchor_axis(height, spacing)
+    cov = covariance(*field(*np.meshgrid(xs, ys)))
+    blur_pad = max(32, spacing)
+    padded = np.pad(image, blur_pad, mode="edge")
+    out = np.empty_like(image)
+    for i in range(len(ys) - 1):
+        y_hi = ys[i + 1] if i < len(ys) - 2 else height
+        for j in range(len(xs) - 1):
+            x_hi = xs[j + 1] if j < len(xs) - 2 else width
+            corners = cov[i : i + 2, j : j + 2]
+            kernel = covariance_kernel(corners.mean(axis=(0, 1))).astype(float)
+            b = cv2.filter2D(padded, -1, kernel, borderType=cv2.BORDER_REPLICATE)
+            for y in range(ys[i], y_hi):
+                for x in range(xs[j], x_hi):
+                    v, u = (y - ys[i]) / (ys[i + 1] - ys[i]), (x - xs[j]) / (xs[j + 1] - xs[j])
+                    own = (1 - v) * ((1 - u) * corners[0, 0] + u * corners[0, 1]) + v * (
+                        (1 - u) * corners[1, 0] + u * corners[1, 1]
+                    )
+                    hx, hy, q = (own - corners.mean(axis=(0, 1))) * [0.5, 0.5, 0.25]
+                    # the blur at the crop's edge pixels continues the replicated image
+                    n = b[blur_pad + y - 1 : blur_pad + y + 2, blur_pad + x - 1 : blur_pad + x + 2]
+                    out[y, x] = (
+                        n[1, 1]
+                        + hx * (n[1, 2] + n[1, 0] - 2 * n[1, 1])
+                        + hy * (n[2, 1] + n[0, 1] - 2 * n[1, 1])
+                        + q * (n[2, 2] - n[2, 0] - n[0, 2] + n[0, 0])
+                    )
+    return np.maximum(out, 0.0)
+
+
+@pytest.mark.parametrize(
+    ("origin", "shape"),
+    [((1400, 1000), (70, 90)), ((40, 900), (48, 130)), ((2500, 1850), (94, 92))],
+)
+def test_psf_plan_equals_the_per_cell_sum(origin, shape):
+    # The plan (built once, reused) gives each pixel the per-cell first-order result, here
+    # recomputed from scratch; the third crop touches the frame's corner, where pixels lie
+    # beyond the image circle. Two images through one cached plan: the second is not stale.
+    psf = PsfTable(
+        theta_deg=(0.0, 50.0, 90.0),
+        sigma_radial_px=(0.6, 1.4, 2.6),
+        sigma_tangential_px=(0.6, 1.1, 1.4),
+    )
+    rng = np.random.default_rng(4)
+    images = rng.uniform(0.0, 1.0, (2, *shape)).astype(np.float32)
+    plan = lens_psf_plan(psf, LENS, origin, shape)
+    assert len(plan.cells) > 1 and lens_psf_plan(psf, LENS, origin, shape) is plan
+    for image in images:
+        out = plan.apply(np.repeat(image[None, ..., None], 3, -1))[0]
+        ref = per_cell_psf(image.astype(float), psf, origin)
+        assert np.abs(out - ref[..., None]).max() <= 1e-6 * np.abs(ref).max()
+
+
+def test_psf_plan_rejects_another_crop_size():
+    plan = lens_psf_plan(PSF, LENS, (1000, 900), (40, 60))
+    with pytest.raises(ValueError, match="plan is for"):
+        plan.apply(np.zeros((1, 40, 61, 3), np.float32))
