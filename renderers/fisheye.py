@@ -76,8 +76,8 @@ class FisheyeRenderer:
         the study's lone marker; :mod:`renderers.sky_irradiance`) or ``"integrator"`` (Mitsuba's
         ``direct`` integrator, Monte Carlo, correct with occluders).
 
-        ``adaptive`` (with the noise-free ``irradiance`` sky, a square spp of even side and
-        ``shadow_spp`` at most spp / 4):
+        ``adaptive`` (with the noise-free ``irradiance`` sky, a square spp of even side and,
+        under a leaf canopy, ``shadow_spp`` at most spp / 4):
         trace one stratified sample per 2 x 2 block of sub-cells first, and the other samples
         only in pixels where those disagree, and their neighbours. Light on a flat patch is
         constant, so a pixel whose samples agree holds the full render's value exactly; only
@@ -97,7 +97,8 @@ class FisheyeRenderer:
             and sky == "irradiance"
             and side * side == spp
             and side % 2 == 0
-            and shadow_spp <= spp // 4  # the canopy's shadow rays start from first-pass hits
+            # the canopy's shadow rays start from first-pass hits
+            and (scene.lighting.canopy is None or shadow_spp <= spp // 4)
         )
         integrator = mi.load_dict({"type": "direct"}) if sky == "integrator" else None
         self._tracer = BlockTracer(camera, scene.scene, scene.lighting, integrator)

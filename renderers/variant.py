@@ -63,7 +63,8 @@ def find_libllvm(min_major: int = MIN_LLVM_MAJOR) -> tuple[str, int] | None:
     return path, major
 
 
-def _gpu_present() -> bool:
+def gpu_present() -> bool:
+    """Whether an NVIDIA device node exists (cheap: no CUDA call)."""
     return Path("/dev/nvidiactl").exists() or Path("/dev/nvidia0").exists()
 
 
@@ -85,7 +86,7 @@ def select_variant(requested: str | None = None) -> str:
 
     candidates = [requested] if requested else []
     if not candidates:
-        if _gpu_present():
+        if gpu_present():
             candidates.append("cuda_ad_rgb")
         if llvm is not None:
             candidates.append("llvm_ad_rgb")
