@@ -46,6 +46,7 @@ bench: setup
 	$(BIN)/whiskerbench bench detectability
 	$(BIN)/whiskerbench bench detectability --psf-scale $(BAND) --full-frame-cells 1
 	$(BIN)/whiskerbench bench render
+	$(BIN)/whiskerbench bench render --scene array --spp 4
 	$(BIN)/whiskerbench bench scale
 
 # The comparison's dataset: 24 outdoor samples (soft strips and dense leaves, 3 distances, no /

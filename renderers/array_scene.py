@@ -47,36 +47,43 @@ class ArrayScene:
         print_all.visual = trimesh.visual.TextureVisuals(
             uv=np.concatenate([(uv + [i, 0.0]) / [n, 1.0] for i in range(n)])
         )
+        #: name -> (mesh at rest, albedo: an RGB triple or a texture), the parts as plain data
+        self.parts = {
+            "prints": (print_all, atlas),
+            "carriers": (_stack_meshes(carriers), (CARRIER_ALBEDO,) * 3),
+            "rods": (_stack_meshes([rod_mesh(spec)] * n), (ROD_ALBEDO,) * 3),
+            "plate": (frame_plate_mesh(spec), (PLATE_ALBEDO,) * 3),
+        }
         self.scene = mi.load_dict(
             {
                 "type": "scene",
-                "prints": mesh_to_mitsuba("prints", print_all, diffuse_bsdf(atlas)),
-                "carriers": mesh_to_mitsuba(
-                    "carriers", _stack_meshes(carriers), diffuse_bsdf(CARRIER_ALBEDO)
-                ),
-                "rods": mesh_to_mitsuba(
-                    "rods", _stack_meshes([rod_mesh(spec)] * n), diffuse_bsdf(ROD_ALBEDO)
-                ),
-                "plate": mesh_to_mitsuba(
-                    "plate", frame_plate_mesh(spec), diffuse_bsdf(PLATE_ALBEDO)
-                ),
+                **{
+                    name: mesh_to_mitsuba(name, mesh, diffuse_bsdf(albedo))
+                    for name, (mesh, albedo) in self.parts.items()
+                },
             },
             optimize=False,
         )
         self._params = mi.traverse(self.scene)
 
-    def set_angles(self, angles_rad: np.ndarray) -> None:
-        """Pose every whisker for deflection angles (n, 2) (scenes.array convention)."""
+    def posed_vertices(self, angles_rad: np.ndarray) -> dict[str, np.ndarray]:
+        """The moving parts' vertices (V, 3) in the camera frame for deflections (n, 2)."""
         markers = T_cam_marker(self.spec, angles_rad)
         rods = self._T_cam_whisker.copy()  # rods turn about their couplings, which stay put
         rods[:, :3, :3] = rods[:, :3, :3] @ deflection_rotation(angles_rad)
         rod_local = np.broadcast_to(self._rod_local, (len(rods),) + self._rod_local.shape)
-        for key, T, local in (
-            ("prints", markers, self._print_local),
-            ("carriers", markers, self._carrier_local),
-            ("rods", rods, rod_local),
-        ):
-            posed = np.einsum("nij,nvj->nvi", T[:, :3, :3], local) + T[:, None, :3, 3]
+        return {
+            key: (np.einsum("nij,nvj->nvi", T[:, :3, :3], local) + T[:, None, :3, 3]).reshape(-1, 3)
+            for key, T, local in (
+                ("prints", markers, self._print_local),
+                ("carriers", markers, self._carrier_local),
+                ("rods", rods, rod_local),
+            )
+        }
+
+    def set_angles(self, angles_rad: np.ndarray) -> None:
+        """Pose every whisker for deflection angles (n, 2) (scenes.array convention)."""
+        for key, posed in self.posed_vertices(angles_rad).items():
             key = f"{key}.vertex_positions"
             self._params[key] = type(self._params[key])(posed.astype(np.float32).ravel())
         self._params.update()

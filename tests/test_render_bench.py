@@ -45,10 +45,10 @@ def test_cycles_renders_the_same_scene():
     project = MarkerRenderer(lens, "4x4_50", 0, spp=4)
     window = project.crop(T, SIZE_MM, 16, margin_px=40)
     ours = project.render(LIGHTING, T, SIZE_MM, window, seed=1).radiance()
-    scene = cycles_scene.CyclesMarkerScene(
-        cycles_scene.import_bpy(), lens, MarkerSpec("4x4_50", 0, SIZE_MM), T,
-        get_lighting(LIGHTING), spp=4, threads=1,
-    )  # fmt: skip
+    parts = cycles_scene.marker_parts(MarkerSpec("4x4_50", 0, SIZE_MM), T)
+    scene = cycles_scene.CyclesScene(
+        cycles_scene.import_bpy(), lens, parts, get_lighting(LIGHTING), spp=4, threads=1
+    )
     theirs, wall, cpu = scene.render(window)
     assert theirs.shape == ours.shape and wall > 0 and cpu > 0
     # The sky is evaluated exactly by both (the crop is mostly sky): equal to float precision;
@@ -62,3 +62,28 @@ def test_cycles_renders_the_same_scene():
     assert figures["detection_equal"]
     assert figures["corners_apart_px"] < 0.5
     assert figures["ratio_wall"] > 0 and figures["ratio_cpu"] > 0
+
+
+@pytest.mark.slow
+def test_array_in_foliage_scene(capsys, monkeypatch):
+    """The array scene: the project's full frame shows every visible marker, detected near its
+    true corners; with bpy, Cycles renders the same meshes to the same detections."""
+    from bench.benchmarks import render_array
+
+    monkeypatch.setattr(cycles_scene, "import_bpy", lambda: None)
+    figures = bench_render(scene="array", spp=1)
+    project = figures["project"]
+    frame = render_array.array_frame(1)
+    visible = int(frame.truth[2].sum())
+    assert visible >= 10 and len(project["detected"]) == visible, capsys.readouterr().out
+    assert project["corner_err_px"] < 1.5
+    parts = frame.cycles_parts()
+    names = [p[0] for p in parts]
+    assert names[:4] == ["prints", "carriers", "rods", "plate"] and len(names) > 4
+    # the posed prints sit where the labels put the markers: each print's centre projects
+    # into the middle of its true corners
+    corners, ids, visible = frame.truth
+    centres = np.asarray(parts[0][1].vertices).reshape(len(ids), -1, 3).mean(axis=1)
+    px = frame.config.camera.lens.project(centres)
+    apart = np.linalg.norm(px - corners.mean(axis=1), axis=-1)[visible]
+    assert apart.max() < 1.0

@@ -1,11 +1,12 @@
-"""The one-marker scene rebuilt in Blender Cycles (``bpy``) from the plain data the project renders.
+"""Scenes rebuilt in Blender Cycles (``bpy``) from the plain data the project renders.
 
-Same print texture (:func:`scenes.marker.marker_albedo`, nearest filtered), print and carrier
-meshes, pose, sun (a sun lamp: strength = the preset's irradiance, its colour, angle 0 like the
-project's delta sun), sky (the world shader evaluates :meth:`scenes.lighting.Sky.radiance` per
-direction with math nodes: the same gradient, ground and backlight, times the sky colour) and
-lens. Direct light only (``max_bounces`` 0), a 1-pixel box filter (uniform samples within each
-pixel, as the project's jitter), no denoising, no adaptive sampling.
+The same meshes, posed (the study's marker, or the whisker array and its vegetation), textures
+(nearest filtered) and albedos; the sun as a sun lamp (strength = the preset's irradiance, its
+colour, angle 0 like the project's delta sun); the sky as a world shader that evaluates
+:meth:`scenes.lighting.Sky.radiance` per direction with math nodes (the same gradient, ground and
+backlight, times the sky colour); the same lens. Direct light only (``max_bounces`` 0), a 1-pixel
+box filter (uniform samples within each pixel, as the project's jitter), no denoising, no
+adaptive sampling.
 
 The lens: Blender's equidistant fisheye stretches its field of view over width and height
 separately, so the camera renders a square D x D with ``fisheye_fov = D / f`` (D even, about
@@ -22,10 +23,12 @@ import os
 import sys
 import tempfile
 import time
+from collections.abc import Sequence
 from pathlib import Path
 from types import ModuleType
 
 import numpy as np
+import trimesh
 
 from renderers.window import Window
 from scenes.camera import FisheyeCamera
@@ -72,15 +75,31 @@ def check_lens(lens: FisheyeCamera) -> None:
         raise ValueError(f"lens: centre ({lens.cx_px}, {lens.cy_px}) is not on the pixel grid")
 
 
-class CyclesMarkerScene:
-    """One marker under one lighting preset, loaded in Blender once; renders windows of it."""
+#: A scene part: name, mesh in the camera frame (uv kept), albedo (an RGB triple or a texture).
+Part = tuple[str, trimesh.Trimesh, tuple[float, float, float] | np.ndarray]
+
+
+def marker_parts(marker: MarkerSpec, T_cam_marker: np.ndarray) -> list[Part]:
+    """The study's marker: its print (textured) and carrier, posed."""
+    parts = []
+    for name, mesh, albedo in (
+        ("print", print_mesh(marker), marker_albedo(marker)),
+        ("carrier", carrier_mesh(marker), (CARRIER_ALBEDO,) * 3),
+    ):
+        posed = mesh.copy()
+        posed.vertices = transform_points(T_cam_marker, np.asarray(mesh.vertices))
+        parts.append((name, posed, albedo))
+    return parts
+
+
+class CyclesScene:
+    """Lambertian meshes under one lighting preset, loaded in Blender once; renders windows."""
 
     def __init__(
         self,
         bpy: ModuleType,
         lens: FisheyeCamera,
-        marker: MarkerSpec,
-        T_cam_marker: np.ndarray,
+        parts: Sequence[Part],
         lighting: Lighting,
         spp: int,
         threads: int,
@@ -104,10 +123,9 @@ class CyclesMarkerScene:
             obj.rotation_mode = "QUATERNION"  # the lamp shines along its -z
             obj.rotation_quaternion = _vector(to_sun).to_track_quat("Z", "Y")
             scene.collection.objects.link(obj)
-        texture = self._image("print", marker_albedo(marker))
-        self._mesh("print", print_mesh(marker), T_cam_marker, self._material("print", texture))
-        carrier = self._material("carrier", (CARRIER_ALBEDO,) * 3)
-        self._mesh("carrier", carrier_mesh(marker), T_cam_marker, carrier)
+        for name, mesh, albedo in parts:
+            texture = albedo if isinstance(albedo, tuple) else self._image(name, albedo)
+            self._mesh(name, mesh, self._material(name, texture))
 
     def _settings(self, scene, spp: int, threads: int) -> None:
         scene.render.engine = "CYCLES"
@@ -204,9 +222,9 @@ class CyclesMarkerScene:
         links.new(diffuse.outputs[0], out.inputs["Surface"])
         return material
 
-    def _mesh(self, name: str, mesh, T_cam_marker: np.ndarray, material) -> None:
-        """A trimesh posed at ``T_cam_marker`` (uv kept when it has them), in Blender's frame."""
-        vertices = transform_points(T_cam_marker, np.asarray(mesh.vertices)) @ CAM_TO_BLENDER.T
+    def _mesh(self, name: str, mesh, material) -> None:
+        """A camera-frame trimesh (uv kept when it has them), in Blender's frame."""
+        vertices = np.asarray(mesh.vertices) @ CAM_TO_BLENDER.T
         data = self.bpy.data.meshes.new(name)
         data.from_pydata(vertices.tolist(), [], np.asarray(mesh.faces).tolist())
         uv = getattr(mesh.visual, "uv", None)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 
+from bench.benchmarks.render import SCENES
 from bench.cli import limits
 from bench.cli.args import check_out_folder
 from renderers.variant import VARIANTS
@@ -43,7 +44,12 @@ def add_bench_render_parser(bench_sub) -> None:
         "render",
         help="the project's renderer against Blender Cycles (pip install --no-deps bpy==5.0.1)",
     )
-    p.add_argument("--scene", choices=("marker",), default="marker", help="(default marker)")
+    p.add_argument(
+        "--scene",
+        choices=SCENES,
+        default="marker",
+        help="marker: the study's marker; array: the whisker array in foliage (default marker)",
+    )
     p.add_argument("--spp", type=int, default=4, help="samples per pixel, both (default 4)")
     p.add_argument("--threads", type=int, help="threads of both renderers (default: cores)")
     p.add_argument("--variant", choices=VARIANTS, help="Mitsuba variant (default: fastest)")
