@@ -172,6 +172,7 @@ CASES: list[tuple[str, str]] = [
     ("bench render --threads=0", r"--threads.*allowed range is 1\.\.\d+"),
     ("bench render --threads=100000", r"--threads.*allowed range is 1\.\.\d+"),
     ("bench render --scene=foliage", r"--scene.*invalid choice"),
+    ("bench render --scene=array --spp=1000", r"--spp.*every ray of a full frame.*GiB; limit \d+"),
     ("bench render --variant=nosuch", r"--variant.*invalid choice"),
     ("bench render --out={fx}/afile", r"--out:.*is a file"),
     # --- bench scale

@@ -13,16 +13,22 @@ from scenes.validation import FieldError
 #: Cycles' cost of one sample per pixel of a full frame, CPU s: a lower bound (README
 #: "Against Blender Cycles" measured 10.8 s at 4 spp on 2 cores) for the time limit of --spp.
 CYCLES_CPU_S_PER_SPP = 1.0
-#: Bytes per sample per pixel of one full-frame row in flight in the project's renderer (jittered
-#: positions, directions and the traced outputs of every sample): the memory limit of --spp.
-ROW_BYTES_PER_SPP = 2592 * 128
+#: Memory per sample per pixel, the limit of --spp, per scene. ``marker``: one full-frame row in
+#: flight in the study's renderer (jittered positions, directions and the traced outputs of every
+#: sample). ``array``: the dataset's renderer holds every ray of the whole frame at once; measured
+#: peak RSS 0.97 GB at 1 spp and 2.47 GB at 3 spp (bench_render(scene="array", use_cycles=False),
+#: resource.getrusage), i.e. 0.75 GB per spp.
+BYTES_PER_SPP = {
+    "marker": (2592 * 128, "one row of samples"),
+    "array": (750e6, "every ray of a full frame"),
+}
 
 
-def check_render_options(spp: int, threads: int | None) -> None:
+def check_render_options(spp: int, threads: int | None, scene: str = "marker") -> None:
     """FieldError naming ``spp`` or ``threads`` and its allowed range, before any work."""
     if spp < 1:
         raise FieldError("spp", f"{spp}: must be >= 1")
-    limits.check_memory("spp", spp, ROW_BYTES_PER_SPP, "one row of samples")
+    limits.check_memory("spp", spp, *BYTES_PER_SPP[scene])
     per_spp = 2 * CYCLES_CPU_S_PER_SPP  # two Cycles renders
     limits.check_time("spp", spp * per_spp, "two Cycles renders", spp, per_spp)
     if threads is not None and not 1 <= threads <= limits.cores():
@@ -32,7 +38,7 @@ def check_render_options(spp: int, threads: int | None) -> None:
 def cmd_bench_render(args: argparse.Namespace) -> int:
     from bench.benchmarks.render import bench_render
 
-    check_render_options(args.spp, args.threads)
+    check_render_options(args.spp, args.threads, args.scene)
     out = None if args.out is None else check_out_folder(args.out)
     bench_render(args.scene, args.spp, args.threads, args.variant, out)
     return 0
