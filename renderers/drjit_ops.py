@@ -17,6 +17,8 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from renderers.variant import jit_variant_active
+
 
 class DrJitOps:
     """The vocabulary over the active Mitsuba variant's Dr.Jit arrays (JIT variants only)."""
@@ -37,7 +39,7 @@ class DrJitOps:
     isnan = staticmethod(dr.isnan)
 
     def __init__(self) -> None:
-        if mi.variant() is None or mi.variant().startswith("scalar"):
+        if not jit_variant_active():
             raise RuntimeError(f"Dr.Jit array code needs a JIT variant, not {mi.variant()}")
         self.Float = mi.Float64
         self.UInt = mi.UInt32

@@ -25,8 +25,9 @@ import cv2
 import mitsuba as mi
 import numpy as np
 
-from renderers.fisheye_trace import CHUNK_RAYS, BlockTracer
+from renderers.fisheye_trace import CHUNK_RAYS, BlockTracer, pad_rows
 from renderers.mitsuba_scene import CanopyScene, MarkerScene
+from renderers.variant import jit_variant_active
 from renderers.window import Window
 from scenes.camera import FisheyeCamera
 from scenes.lighting import Lighting, canopy_frame
@@ -51,10 +52,6 @@ class RenderedWindow:
         if sun_visibility is None:
             return self.sky_rgb + self.sun_rgb
         return self.sky_rgb[None] + sun_visibility[..., None] * self.sun_rgb[None]
-
-
-def _is_jit() -> bool:
-    return mi.variant() is not None and not mi.variant().startswith("scalar")
 
 
 SKY_METHODS = ("irradiance", "integrator")
@@ -160,13 +157,6 @@ def _first_pass(spp: int) -> np.ndarray:
     return np.flatnonzero((col % 2 == 0) & (row % 2 == 0))
 
 
-def _pad(rays: np.ndarray, chunk: int = CHUNK_RAYS) -> np.ndarray:
-    """Pad (n, 3) rays to a whole chunk with copies of the first ray."""
-    if len(rays) == chunk:
-        return rays
-    return np.concatenate([rays, np.broadcast_to(rays[:1], (chunk - len(rays), 3))])
-
-
 def canopy_visibility(
     canopy: CanopyScene,
     lighting: Lighting,
@@ -212,11 +202,14 @@ def jitter_in_cone(
 
 def _ray_test(scene: mi.Scene, origins: np.ndarray, dirs: np.ndarray) -> np.ndarray:
     """Occlusion of rays (any hit), (N,) bool; vectorized on JIT variants."""
-    if _is_jit():
+    if jit_variant_active():
         out = np.zeros(len(origins), bool)
         for start in range(0, len(origins), CHUNK_RAYS):
             n = min(CHUNK_RAYS, len(origins) - start)
-            o, d = (_pad(a[start : start + n]).T.astype(np.float32) for a in (origins, dirs))
+            o, d = (
+                pad_rows(a[start : start + n], CHUNK_RAYS).T.astype(np.float32)
+                for a in (origins, dirs)
+            )
             out[start : start + n] = scene.ray_test(
                 mi.Ray3f(mi.Point3f(o), mi.Vector3f(d))
             ).numpy()[:n]

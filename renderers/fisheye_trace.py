@@ -17,6 +17,7 @@ import mitsuba as mi
 import numpy as np
 
 from renderers.sky_irradiance import sky_luminance
+from renderers.variant import jit_variant_active
 from scenes.array_ops import NUMPY
 from scenes.camera import FisheyeCamera
 from scenes.lighting import Lighting
@@ -53,7 +54,7 @@ class BlockTracer:
     ) -> None:
         self.camera, self.scene, self.lighting = camera, scene, lighting
         self.integrator = integrator
-        self.jit = mi.variant() is not None and not mi.variant().startswith("scalar")
+        self.jit = jit_variant_active()
         if self.jit:
             from renderers.drjit_ops import DrJitOps
 
@@ -70,8 +71,7 @@ class BlockTracer:
         for c, start in enumerate(range(0, m, per)):
             block = points[start : start + per]
             n = len(block)
-            if n < per:  # pad with copies of the first pixel: one kernel size
-                block = np.concatenate([block, np.broadcast_to(block[:1], (per - n, k, 2))])
+            block = pad_rows(block, per)  # one kernel size
             out = self._trace_jit(block.reshape(-1, 2), k, c, seed, positions)
             parts.append(tuple(None if a is None else a[:n] for a in out))
         cols = [np.concatenate([p[i] for p in parts]) for i in range(4)]
@@ -167,6 +167,14 @@ class BlockTracer:
             light.min(axis=1),
             pos.reshape(m, k, 3) if positions else None,
         )
+
+
+def pad_rows(a: np.ndarray, length: int) -> np.ndarray:
+    """``a`` padded along its first axis to ``length`` rows with copies of its first row: a
+    chunk of fixed size reuses one compiled kernel."""
+    if len(a) == length:
+        return a
+    return np.concatenate([a, np.broadcast_to(a[:1], (length - len(a), *a.shape[1:]))])
 
 
 def _per_pixel(op: dr.ReduceOp, value, k: int):

@@ -63,6 +63,7 @@ from renderers.frame_rays import RayPlan, ray_plan
 from renderers.frame_sampling import FrameSampling, marker_region
 from renderers.mitsuba_scene import CanopyScene
 from renderers.sky_irradiance import irradiance_table
+from renderers.variant import jit_variant_active
 from renderers.window import Window
 from scenes.array import ArraySpec
 from scenes.camera import FisheyeCamera
@@ -111,7 +112,7 @@ class FrameRenderer:
         region to a per-pixel factor (H, W) float32 that every frame is multiplied by on the
         Dr.Jit side, with the average over each pixel's samples (the camera twin's per-pixel
         optics, :func:`renderers.camera_twin.pixel_gain`); None: 1."""
-        if mi.variant() is None or mi.variant().startswith("scalar"):
+        if not jit_variant_active():
             raise RuntimeError(
                 f"frame rendering needs a JIT variant (llvm_ad_rgb or cuda_ad_rgb), not "
                 f"{mi.variant()}; `make setup` installs the libLLVM that llvm_ad_rgb needs"

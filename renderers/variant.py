@@ -109,6 +109,14 @@ def select_variant(requested: str | None = None) -> str:
     raise RuntimeError("no Mitsuba variant could be set: " + "; ".join(errors))
 
 
+def jit_variant_active() -> bool:
+    """Whether the Mitsuba variant set in this process is a JIT one (``llvm_ad_rgb`` or
+    ``cuda_ad_rgb``): vectorized, millions of rays per call."""
+    import mitsuba as mi
+
+    return mi.variant() is not None and not mi.variant().startswith("scalar")
+
+
 def init_worker(variant: str | None, threads: int | None = None) -> str:
     """Set the Mitsuba variant (and Dr.Jit's thread count) in this process; return the variant.
 
