@@ -20,6 +20,8 @@ from __future__ import annotations
 import os
 import platform
 import time
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
@@ -34,6 +36,7 @@ from renderers.marker_renderer import MarkerRenderer
 from renderers.sensor import LUMINANCE_RGB, quantize
 from renderers.variant import init_worker
 from renderers.window import Window
+from scenes.camera import FisheyeCamera
 from scenes.lighting import get_lighting
 from scenes.marker import MarkerSpec
 from scenes.study import study_pose
@@ -59,9 +62,22 @@ def _marker_outcome(image: np.ndarray, window: Window, config: StudyConfig, trut
     return {"detected": bool(found), "corner_err_px": float(error), "corners": corners}
 
 
-def _marker_setup(spp: int, crop: bool) -> tuple:
-    """The one-marker scene: (project render(seed), Cycles parts, window, outcome, exposure,
-    description)."""
+@dataclass(frozen=True)
+class _Scene:
+    """A scene of the benchmark, ready for both renderers."""
+
+    lens: FisheyeCamera
+    window: Window
+    project: Callable[[int], tuple]  # seed -> (radiance, None, None): timed by the caller
+    cycles_parts: Callable[[], list]  # the same meshes for Cycles (built only when it runs)
+    outcome: Callable[[np.ndarray], dict]  # detection on an 8-bit image; "detected" compares
+    describe: Callable[[dict], str]  # an outcome in words
+    exposure: float
+    what: str
+
+
+def _marker_scene(spp: int, crop: bool) -> _Scene:
+    """The study's marker, pose and preset; the full frame or a crop around the marker."""
     config = StudyConfig(camera=profile_from_option(CAMERA))
     lens, lighting = config.camera.lens, get_lighting(LIGHTING)
     T = study_pose(ALPHA_DEG, PHI_DEG, config.distance_mm)
@@ -72,34 +88,45 @@ def _marker_setup(spp: int, crop: bool) -> tuple:
     def project(seed: int):
         return renderer.render(LIGHTING, T, SIZE_MM, window, seed).radiance(), None, None
 
+    def describe(found: dict) -> str:
+        if found["detected"]:
+            return f"marker detected, corner error {found['corner_err_px']:.2f} px"
+        return "marker NOT detected"
+
     marker = MarkerSpec(config.dictionary, config.marker_id, SIZE_MM)
-    return (
+    return _Scene(
+        lens,
+        window,
         project,
         lambda: marker_parts(marker, T),
-        window,
         lambda image: _marker_outcome(image, window, config, truth),
+        describe,
         lighting.exposure,
         f"one marker ({SIZE_MM:g} mm, alpha {ALPHA_DEG:g}, phi {PHI_DEG:g} deg, "
         f"{config.distance_mm:g} mm)",
     )
 
 
-def _array_setup(spp: int, crop: bool) -> tuple:
-    """The array in foliage (:mod:`bench.benchmarks.render_array`), always the full frame."""
+def _array_scene(spp: int) -> _Scene:
+    """The array in foliage (:mod:`bench.benchmarks.render_array`): always the full frame."""
     from bench.benchmarks.render_array import SAMPLE, array_frame, array_outcome
 
     frame = array_frame(spp)
-    window = Window.full(frame.config.camera.lens)
+    lens = frame.config.camera.lens
 
-    def outcome(image: np.ndarray) -> dict:
-        found = array_outcome(image, frame)
-        return {**found, "detected": found["ids"]}
+    def describe(found: dict) -> str:
+        return (
+            f"{len(found['detected'])} of {found['visible']} visible markers detected, corner "
+            f"error {found['corner_err_px']:.2f} px"
+        )
 
-    return (
+    return _Scene(
+        lens,
+        Window.full(lens),
         lambda _seed: (frame.render_project(), None, None),
         frame.cycles_parts,
-        window,
-        outcome,
+        lambda image: array_outcome(image, frame),
+        describe,
         frame.exposure,
         "the whisker array in {foliage} foliage at the {distance} distance, mid-sample".format(
             **SAMPLE
@@ -137,19 +164,21 @@ def bench_render(
         raise FieldError("scene", f"{scene!r}: choose from {', '.join(SCENES)}")
     if spp < 1 or (threads is not None and threads < 1):
         raise ValueError(f"spp={spp}, threads={threads}: both must be >= 1")
+    if crop and scene != "marker":
+        raise ValueError(f"crop: only the marker scene has a crop, not {scene!r}")
     threads = threads or os.cpu_count() or 1
     clock = RunClock()
     if out is not None:
         claim_out(out, "bench-render")
     chosen = init_worker(variant, threads)
-    setup = _marker_setup if scene == "marker" else _array_setup
-    project, parts, window, outcome, exposure, what = setup(spp, crop)
+    bench = _marker_scene(spp, crop) if scene == "marker" else _array_scene(spp)
+    window = bench.window
     print(
-        f"render benchmark: {what} in the {LIGHTING} preset, {CAMERA} lens, {window.width}x"
+        f"render benchmark: {bench.what} in the {LIGHTING} preset, {CAMERA} lens, {window.width}x"
         f"{window.height} px, {spp} spp, direct light, {threads} threads ({platform.node()}, "
         f"{os.cpu_count()} cores)"
     )
-    rows = {"project": _run("project", chosen, project, outcome, exposure)}
+    rows = {"project": _run("project", chosen, bench.project, bench)}
     bpy = None
     if use_cycles:
         from bench.benchmarks.cycles_scene import INSTALL_HINT, import_bpy
@@ -160,10 +189,10 @@ def bench_render(
     if bpy is not None:
         from bench.benchmarks.cycles_scene import CyclesScene
 
-        lens = profile_from_option(CAMERA).lens
-        cycles = CyclesScene(bpy, lens, parts(), get_lighting(LIGHTING), spp, threads)
+        parts = bench.cycles_parts()
+        cycles = CyclesScene(bpy, bench.lens, parts, get_lighting(LIGHTING), spp, threads)
         name = f"Cycles {bpy.app.version_string}"
-        rows["cycles"] = _run(name, "CPU", lambda _: cycles.render(window), outcome, exposure)
+        rows["cycles"] = _run(name, "CPU", lambda _: cycles.render(window), bench)
     figures = _verdict(rows)
     figures.update(
         scene=scene,
@@ -178,27 +207,16 @@ def bench_render(
     return figures
 
 
-def _run(name, device, render, outcome, exposure) -> dict:
+def _run(name: str, device: str, render, bench: _Scene) -> dict:
     """Time one renderer's two renders, detect on the second; print one line."""
     radiance, walls, cpus = _time(render)
-    image = camera_image(radiance, exposure)
-    found = outcome(image)
+    image = camera_image(radiance, bench.exposure)
+    found = bench.outcome(image)
     print(
         f"  {name} ({device}): first render {walls[0]:.2f} s wall / {cpus[0]:.2f} s CPU, "
-        f"then {walls[1]:.2f} s wall / {cpus[1]:.2f} s CPU; {_seen(found)}"
+        f"then {walls[1]:.2f} s wall / {cpus[1]:.2f} s CPU; {bench.describe(found)}"
     )
     return {"name": name, "device": device, "wall_s": walls, "cpu_s": cpus, "image": image, **found}
-
-
-def _seen(found: dict) -> str:
-    if isinstance(found["detected"], list):  # the array: which markers
-        return (
-            f"{len(found['ids'])} of {found['visible']} visible markers detected, corner error "
-            f"{found['corner_err_px']:.2f} px"
-        )
-    if found["detected"]:
-        return f"marker detected, corner error {found['corner_err_px']:.2f} px"
-    return "marker NOT detected"
 
 
 def _verdict(rows: dict) -> dict:

@@ -19,7 +19,6 @@ from bench.dataset.config import DatasetConfig
 from bench.dataset.labels import corners_of_frame
 from bench.dataset.sample import simulate_sample
 from pipeline.detect import DetectorConfig, detect_markers
-from renderers.window import Window
 from scenes.lighting import get_lighting
 
 #: The sample and the frame: mid-sample of a default sample with foliage touching the array.
@@ -111,13 +110,8 @@ def array_outcome(image: np.ndarray, frame: ArrayFrame) -> dict:
     hits = sorted(set(found) & set(truth))
     errors = [np.linalg.norm(found[i] - truth[i], axis=1).mean() for i in hits]
     return {
-        "detected": len(hits),
+        "detected": hits,  # marker ids, compared between the renderers
         "visible": len(truth),
-        "ids": hits,
         "corner_err_px": float(np.mean(errors)) if errors else float("nan"),
         "corners": np.array([found[i] for i in hits]).reshape(-1, 2),
     }
-
-
-def full_window(frame: ArrayFrame) -> Window:
-    return Window.full(frame.config.camera.lens)
