@@ -11,12 +11,15 @@ from __future__ import annotations
 import json
 import re
 import shutil
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from bench.cli.main import main
+from renderers.variant import gpu_present
 from scenes.profile import CameraProfile
 
 PROFILE = CameraProfile().to_json()
@@ -471,3 +474,23 @@ def test_shipped_settings_are_within_the_limits():
     limits.check_sweep(SweepConfig(), 4)
     lens = dataset.camera.lens
     limits.check_frames("frames", 30, lens.width_px, lens.height_px, "full frames")
+
+
+@pytest.mark.skipif(gpu_present(), reason="this machine has a GPU: cuda_ad_rgb would run")
+@pytest.mark.parametrize(
+    "command", ["detectability --quick", "dataset --quick", "bench render", "bench scale"]
+)
+def test_gpu_variant_without_a_gpu_is_refused(command, tmp_path):
+    """--variant cuda_ad_rgb on a machine without a GPU: one line, exit 2, nothing written
+    (in a process of its own: the test session's Mitsuba variant stays as it is)."""
+    out = tmp_path / "out"
+    argv = [*command.split(), "--variant", "cuda_ad_rgb"]
+    if command != "bench scale":
+        argv += ["--out", str(out)]
+    done = subprocess.run(
+        [sys.executable, "-m", "bench.cli", *argv], capture_output=True, text=True, cwd=tmp_path
+    )
+    lines = done.stderr.strip().splitlines()
+    assert done.returncode == 2 and len(lines) == 1, done.stderr
+    assert re.search(r"--variant: cuda_ad_rgb needs an NVIDIA GPU", lines[0])
+    assert not out.exists() and sorted(p.name for p in tmp_path.iterdir()) == []

@@ -357,12 +357,30 @@ def bug_report(command: str, exc: BaseException) -> str:
     )
 
 
+def _check_variant(requested: str | None) -> None:
+    """A ``--variant`` this machine cannot run (cuda_ad_rgb without a GPU, llvm_ad_rgb without
+    libLLVM) is refused before any command claims a folder; setting it here is what the command
+    would do first anyway (idempotent)."""
+    if requested is None:
+        return
+    from renderers.variant import gpu_present, select_variant
+
+    if requested.startswith("cuda") and not gpu_present():
+        raise FieldError("variant", f"{requested} needs an NVIDIA GPU; this machine has none")
+    try:
+        select_variant(requested)
+    except (ValueError, RuntimeError) as exc:
+        reason = str(exc).removeprefix("no Mitsuba variant could be set: ")
+        raise FieldError("variant", f"cannot be used on this machine: {reason}") from None
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = _parser()
     args = parser.parse_args(argv)
     command = command_name(args)
     args.kept = "nothing was written"
     try:
+        _check_variant(getattr(args, "variant", None))
         return args.func(args)
     except FieldError as exc:
         option = {**OPTION_OF_FIELD, **DATASET_OPTION_OF_FIELD}.get(exc.field, exc.field)
