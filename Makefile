@@ -10,7 +10,7 @@ setup: $(VENV)/.installed llvm
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
-	$(BIN)/pip install --quiet -e '.[dev]'
+	$(BIN)/pip install --quiet -e '.[dev,peers]'
 	touch $@
 
 # Dr.Jit's fast CPU backend needs libLLVM >= 17 (15/16 abort drjit 1.5): install Debian's 19.

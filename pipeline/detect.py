@@ -1,53 +1,54 @@
-"""ArUco marker detection with OpenCV 5's ``cv2.aruco.ArucoDetector``, parameters as data.
+"""Marker detection through any backend (:mod:`pipeline.backends`), its settings as data.
 
-Size limits are given in absolute pixels of the full frame, not as OpenCV's rates relative to
-the image side, so that detecting in a crop behaves as detecting in the full 2592-px frame
-would. The defaults are OpenCV's own (rate 0.03 and 4.0 of a 2592-px side), except the corner
-refinement, which is sub-pixel so that corner and pose errors measure the scene, not the
-detector's integer corners.
+:class:`DetectorConfig` names the backend (``opencv``, ``locus``, ``apriltag``), the marker
+family and the corner refinement; the other fields are OpenCV's ``DetectorParameters`` and only
+the ``opencv`` backend reads them. :func:`detect_markers` runs the backend (peers in a worker
+process), keeps the detections within the size limits, moves crop coordinates to the full frame
+and refines the corners.
 
-Corner refinement ``"lines"`` is this project's own: OpenCV runs with ``CORNER_REFINE_NONE`` and
-each detection's corners are then refined by :func:`pipeline.refine.refine_corners_by_edges`,
-which fits straight lines to the marker's 4 border edges in a virtual pinhole view aimed at the
-marker (where they are exactly straight) and intersects them. It needs the camera model
-(``detect_markers(..., camera=...)``). Why: on noise-free anti-aliased renders OpenCV's
-``"subpix"`` (cornerSubPix) puts the outer, L-shaped corners 0.35-0.5 px inside the true corner
-at every window size, and ``"contour"`` and ``"apriltag"`` are off by 0.5-1 px; on the same
-renders ``"lines"`` has a median error of 0.02 px and a maximum of 0.11 px over alpha 0-85 deg and
-phi 0-60 deg (see :mod:`pipeline.refine`). It costs about 1 ms per marker. If it fails for a
-detection, that detection keeps OpenCV's unrefined corners.
+Size limits are rates of the full frame's longer side, as OpenCV's are of its image's (0.03 and
+4.0, OpenCV's defaults): a crop is searched as the full frame would be, and the limits follow
+the camera rather than one camera's pixels. The full frame is the camera model's when it is
+given, else the image's own.
+
+Corner refinement ``"lines"`` is this project's own, on any backend: its corners are refined by
+:func:`pipeline.refine.refine_corners_by_edges`, which fits straight lines to the marker's 4
+border edges in a virtual pinhole view aimed at the marker (where they are exactly straight) and
+intersects them. It needs the camera model (``detect_markers(..., camera=...)``). Why: on
+noise-free anti-aliased renders OpenCV's ``"subpix"`` (cornerSubPix) puts the outer, L-shaped
+corners 0.35-0.5 px inside the true corner at every window size, and ``"contour"`` and
+``"apriltag"`` are off by 0.5-1 px; on the same renders ``"lines"`` has a median error of
+0.02 px and a maximum of 0.11 px over alpha 0-85 deg and phi 0-60 deg (see
+:mod:`pipeline.refine`). It costs about 1 ms per marker. Where it fails for a detection, that
+detection keeps the backend's corners and says why (``Detection.refine_failure``). The other
+refinements are OpenCV's own; a peer offers ``"none"`` (its own corners) or ``"lines"``.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import lru_cache
 
-import cv2
 import numpy as np
 
-from pipeline.refine import refine_corners_by_edges
+from pipeline.backends import BACKENDS, PoseRequest, check_family, get_backend
+from pipeline.backends.isolated import run_backend
+from pipeline.backends.opencv import REFINEMENTS
+from pipeline.refine import TRANSFERS, refine_corners_by_edges
 from scenes.camera import FisheyeCamera
-from scenes.marker import get_dictionary
+from scenes.marker import check_dictionary, get_dictionary
 
-REFINEMENTS = {
-    "none": cv2.aruco.CORNER_REFINE_NONE,
-    "subpix": cv2.aruco.CORNER_REFINE_SUBPIX,
-    "contour": cv2.aruco.CORNER_REFINE_CONTOUR,
-    "apriltag": cv2.aruco.CORNER_REFINE_APRILTAG,
-    "lines": cv2.aruco.CORNER_REFINE_NONE,  # then refine_corners_by_edges, see the docstring
-}
-REFERENCE_SIDE_PX = 2592
+#: The refinements a peer backend offers: its own corners, or the project's edge lines.
+PEER_REFINEMENTS = ("none", "lines")
 
 
 @dataclass(frozen=True)
 class DetectorConfig:
-    """The detector's settings; every field is documented by OpenCV's DetectorParameters."""
+    """The detector's settings; the OpenCV fields are documented by its DetectorParameters."""
 
     dictionary: str = "4x4_50"
     corner_refinement: str = "subpix"
-    min_marker_perimeter_px: float = 0.03 * REFERENCE_SIDE_PX
-    max_marker_perimeter_px: float = 4.0 * REFERENCE_SIDE_PX
+    min_marker_perimeter_rate: float = 0.03  # of the full frame's longer side
+    max_marker_perimeter_rate: float = 4.0
     adaptive_thresh_win_size_min: int = 3
     adaptive_thresh_win_size_max: int = 23
     adaptive_thresh_win_size_step: int = 10
@@ -57,43 +58,45 @@ class DetectorConfig:
     #: default 4). Under a lens blur of about a fifth of a cell, 4 samples per cell misread bits
     #: (see the detectability study in the README); more samples read the cell's centre.
     cell_px: int = 4
+    #: Which library finds the markers (:data:`pipeline.backends.BACKENDS`).
+    backend: str = "opencv"
+    #: The curve that encoded the image, for ``"lines"`` (:data:`pipeline.refine.TRANSFERS`).
+    transfer: str = "srgb"
 
     def __post_init__(self) -> None:
-        if self.corner_refinement not in REFINEMENTS:
+        if self.backend not in BACKENDS:
+            raise ValueError(f"detector={self.backend!r}: choose from {', '.join(BACKENDS)}")
+        object.__setattr__(self, "dictionary", check_dictionary(self.dictionary))
+        check_family(self.backend, self.dictionary)
+        allowed = REFINEMENTS if self.backend == "opencv" else PEER_REFINEMENTS
+        if self.corner_refinement not in allowed:
             raise ValueError(
-                f"corner_refinement={self.corner_refinement!r}: "
-                f"choose from {', '.join(REFINEMENTS)}"
+                f"corner_refinement={self.corner_refinement!r}: detector {self.backend} "
+                f"offers {', '.join(allowed)}"
             )
-        if not 0 < self.min_marker_perimeter_px < self.max_marker_perimeter_px:
-            raise ValueError("need 0 < min_marker_perimeter_px < max_marker_perimeter_px")
+        if self.transfer not in TRANSFERS:
+            raise ValueError(f"transfer={self.transfer!r}: choose from {', '.join(TRANSFERS)}")
+        if not 0 < self.min_marker_perimeter_rate < self.max_marker_perimeter_rate <= 4.0:
+            raise ValueError(
+                "need 0 < min_marker_perimeter_rate < max_marker_perimeter_rate <= 4 "
+                "(rates of the full frame's longer side)"
+            )
         if isinstance(self.cell_px, bool) or not isinstance(self.cell_px, int):
             raise ValueError(f"cell_px={self.cell_px!r}: must be an integer in 2..32")
         if not 2 <= self.cell_px <= 32:
             raise ValueError(f"cell_px={self.cell_px}: allowed range is 2..32")
-        get_dictionary(self.dictionary)
 
 
 @dataclass(frozen=True)
 class Detection:
-    """One detected marker: id and corners (4, 2) in full-image pixels, ArUco order."""
+    """One detected marker: id and corners (4, 2) in full-image pixels, ArUco order; the
+    backend's own pose where asked for and offered; why ``"lines"`` kept the backend's corners
+    (None where it refined them or was not asked)."""
 
     marker_id: int
     corners_px: np.ndarray
-
-
-@lru_cache(maxsize=64)
-def _detector(config: DetectorConfig, side_px: int) -> cv2.aruco.ArucoDetector:
-    p = cv2.aruco.DetectorParameters()
-    p.minMarkerPerimeterRate = config.min_marker_perimeter_px / side_px
-    p.maxMarkerPerimeterRate = config.max_marker_perimeter_px / side_px
-    p.cornerRefinementMethod = REFINEMENTS[config.corner_refinement]
-    p.adaptiveThreshWinSizeMin = config.adaptive_thresh_win_size_min
-    p.adaptiveThreshWinSizeMax = config.adaptive_thresh_win_size_max
-    p.adaptiveThreshWinSizeStep = config.adaptive_thresh_win_size_step
-    p.adaptiveThreshConstant = config.adaptive_thresh_constant
-    p.useAruco3Detection = config.use_aruco3_detection
-    p.perspectiveRemovePixelPerCell = config.cell_px
-    return cv2.aruco.ArucoDetector(get_dictionary(config.dictionary), p)
+    own_T_cam_marker: np.ndarray | None = None
+    refine_failure: str | None = None
 
 
 def detect_markers(
@@ -101,33 +104,49 @@ def detect_markers(
     config: DetectorConfig,
     offset_px: tuple[int, int] = (0, 0),
     camera: FisheyeCamera | None = None,
+    own_pose_size_mm: float | None = None,
 ) -> list[Detection]:
     """Detect markers in an 8-bit grey image (or crop whose top-left pixel is ``offset_px``).
 
-    ``camera`` is required by ``corner_refinement="lines"`` and unused otherwise.
+    ``camera`` is required by ``corner_refinement="lines"`` and by ``own_pose_size_mm`` (the
+    marker side for the backend's own pose, which it is then asked for). A peer that crashes
+    raises :class:`pipeline.backends.BackendCrashError`; one not installed
+    :class:`pipeline.backends.BackendUnavailableError`.
     """
     if image.ndim != 2 or image.dtype != np.uint8:
         raise ValueError(f"need an 8-bit grey image, got {image.dtype} of shape {image.shape}")
     lines = config.corner_refinement == "lines"
-    if lines and camera is None:
-        raise ValueError("corner_refinement='lines' needs the camera: pass camera=...")
-    corners, ids, _ = _detector(config, max(image.shape)).detectMarkers(image)
-    if ids is None:
-        return []
-    offset = np.asarray(offset_px, dtype=float)
-    detections = [
-        Detection(int(i), c.reshape(4, 2).astype(float) + offset)
-        for i, c in zip(ids.ravel(), corners, strict=True)
-    ]
-    if lines:
-        modules = int(get_dictionary(config.dictionary).markerSize) + 2
-        detections = [
-            Detection(
-                d.marker_id,
-                refine_corners_by_edges(
-                    image, d.corners_px, camera, modules, (int(offset[0]), int(offset[1]))
-                ),
-            )
-            for d in detections
-        ]
+    if (lines or own_pose_size_mm is not None) and camera is None:
+        raise ValueError("corner_refinement='lines' and own poses need the camera: camera=...")
+    offset = np.asarray(offset_px, dtype=float).reshape(2)
+    side = max(camera.width_px, camera.height_px) if camera is not None else max(image.shape)
+    pose = None
+    if own_pose_size_mm is not None and get_backend(config.backend).own_pose:
+        pose = PoseRequest(
+            camera.fx_px, camera.fy_px, camera.cx_px - offset[0], camera.cy_px - offset[1],
+            float(own_pose_size_mm),
+        )  # fmt: skip
+    found = run_backend(np.ascontiguousarray(image), config, side, pose)
+    keep = _within_size_limits(found.corners_px, config, side)
+    modules = int(get_dictionary(config.dictionary).markerSize) + 2
+    detections = []
+    for k in np.flatnonzero(keep):
+        corners, failure = found.corners_px[k] + offset, None
+        if lines:
+            corners, failure = refine_corners_by_edges(
+                image, corners, camera, modules, (int(offset[0]), int(offset[1])),
+                transfer=config.transfer,
+            )  # fmt: skip
+        own = None if found.own_T_cam_marker is None else found.own_T_cam_marker[k]
+        detections.append(Detection(int(found.ids[k]), corners, own, failure))
     return detections
+
+
+def _within_size_limits(corners_px: np.ndarray, config: DetectorConfig, side: int) -> np.ndarray:
+    """(N,) whether each quad's perimeter is within the limits; OpenCV applies them itself."""
+    if config.backend == "opencv":
+        return np.ones(len(corners_px), bool)
+    perimeter = np.linalg.norm(corners_px - np.roll(corners_px, 1, axis=1), axis=2).sum(axis=1)
+    return (perimeter >= config.min_marker_perimeter_rate * side) & (
+        perimeter <= config.max_marker_perimeter_rate * side
+    )

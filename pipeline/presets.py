@@ -20,6 +20,11 @@ changes, for example ``paper/refine=contour/aruco3=on`` or ``fast/window=3-23-10
     integration, and the threshold inferred from the sample itself when none is given.
 ``naive``
     Full frame, no refinement, a pinhole pose that ignores the lens, per-whisker maximum.
+``locus``, ``apriltag``
+    The peers (:mod:`pipeline.backends`) as their authors ship them: the full frame, their own
+    corners, then this project's virtual-view pose, integration and fixed threshold (the pose
+    and branch steps are the robot's; only the detector differs). ``/detector=`` puts any
+    preset on another backend, e.g. ``robust/detector=locus`` (locus finds, ``lines`` refines).
 """
 
 from __future__ import annotations
@@ -95,7 +100,15 @@ PRESETS: dict[str, PipelineConfig] = {
     "naive": PipelineConfig(
         "naive", DetectorConfig(corner_refinement="none"), Search("full"), "pinhole", "max"
     ),
+    **{
+        peer: PipelineConfig(
+            peer, DetectorConfig(corner_refinement="none", backend=peer), Search("full"), "virtual"
+        )
+        for peer in ("locus", "apriltag")
+    },
 }
+#: Choices that set OpenCV's own parameters: refused with a peer detector, which ignores them.
+OPENCV_CHOICES = ("aruco3", "window", "constant", "cell")
 
 
 def _window(text: str) -> dict:
@@ -153,7 +166,9 @@ def _on_off(text: str) -> bool:
 
 #: The ``/choice=value`` changes a variant name may make: choice -> (what it sets, parser).
 CHOICES = {
+    "detector": ("detector", lambda v: {"backend": v}),
     "refine": ("detector", lambda v: {"corner_refinement": v}),
+    "transfer": ("detector", lambda v: {"transfer": v}),
     "aruco3": ("detector", lambda v: {"use_aruco3_detection": _on_off(v)}),
     "window": ("detector", _window),
     "constant": ("detector", _constant),
@@ -175,6 +190,7 @@ def get_pipeline(name: str) -> PipelineConfig:
             f"pipeline {name!r}: unknown preset {preset!r}; choose from {', '.join(PRESETS)}"
         )
     config = dataclasses.replace(PRESETS[preset], name=name)
+    detector: dict = {}  # applied together: a backend and its refinement are one choice
     for change in changes:
         key, _, value = change.partition("=")
         if key not in CHOICES or not value:
@@ -186,9 +202,8 @@ def get_pipeline(name: str) -> PipelineConfig:
         try:
             fields = parse(value)
             if part == "detector":
-                config = dataclasses.replace(
-                    config, detector=dataclasses.replace(config.detector, **fields)
-                )
+                detector.update(fields)
+                dataclasses.replace(config.detector, **fields)  # this change alone is valid
             elif part == "search":
                 config = dataclasses.replace(
                     config, search=dataclasses.replace(config.search, **fields)
@@ -196,5 +211,19 @@ def get_pipeline(name: str) -> PipelineConfig:
             else:
                 config = dataclasses.replace(config, **fields)
         except ValueError as exc:
+            if part == "detector" and "detector " in str(exc):
+                continue  # a backend/refinement pair checked as a whole below
             raise ValueError(f"pipeline {name!r}: {change}: {exc}") from None
+    try:
+        config = dataclasses.replace(
+            config, detector=dataclasses.replace(config.detector, **detector)
+        )
+    except ValueError as exc:
+        raise ValueError(f"pipeline {name!r}: {exc}") from None
+    peer_only = [c for c in changes if c.partition("=")[0] in OPENCV_CHOICES]
+    if config.detector.backend != "opencv" and peer_only:
+        raise ValueError(
+            f"pipeline {name!r}: {peer_only[0]} sets an OpenCV parameter, which detector "
+            f"{config.detector.backend} does not have"
+        )
     return config

@@ -49,6 +49,7 @@ corners are returned unchanged: a bad image never raises.
 from __future__ import annotations
 
 from functools import lru_cache
+from typing import NamedTuple
 
 import cv2
 import numpy as np
@@ -282,6 +283,13 @@ def _refine(
     return corners
 
 
+class Refinement(NamedTuple):
+    """Refined corners (4, 2), or the input corners and why refinement fell back."""
+
+    corners_px: np.ndarray
+    failure: str | None  # None: refined; else the reason the input corners were kept
+
+
 def refine_corners_by_edges(
     image: np.ndarray,
     corners_px: np.ndarray,
@@ -291,7 +299,7 @@ def refine_corners_by_edges(
     *,
     transfer: str = "srgb",
     max_shift_px: float = 2.5,
-) -> np.ndarray:
+) -> Refinement:
     """Refine a marker's 4 corners from its straight border edges (see the module docstring).
 
     ``image``: (H, W) uint8 grey, the full frame or a crop whose top-left pixel is ``offset_px``
@@ -300,8 +308,9 @@ def refine_corners_by_edges(
     across the black square, markerSize + 2 (6 for a 4x4 dictionary). ``transfer``: the curve
     that encoded the image, "srgb" or "linear".
 
-    Returns (4, 2) float64 corners in full-image pixels, ArUco order. If refinement fails, or a
-    corner would move more than ``max_shift_px``, returns (a copy of) the input corners.
+    Returns the (4, 2) float64 corners in full-image pixels, ArUco order. If refinement fails,
+    or a corner would move more than ``max_shift_px``, they are (a copy of) the input corners
+    and ``failure`` says why.
     """
     if transfer not in TRANSFERS:
         raise ValueError(f"transfer={transfer!r}: choose from {', '.join(TRANSFERS)}")
@@ -309,13 +318,13 @@ def refine_corners_by_edges(
         raise ValueError(f"need an 8-bit grey image, got {image.dtype} of shape {image.shape}")
     start = np.asarray(corners_px, dtype=float).reshape(4, 2)
     if not np.isfinite(start).all() or int(modules) < 3:
-        return start.copy()
+        return Refinement(start.copy(), "corners not finite or too few modules")
     offset = np.asarray(offset_px, dtype=float).reshape(2)
     try:
         with np.errstate(all="ignore"):  # failures are detected explicitly, not by warnings
             corners = _refine(image, start, camera, int(modules), offset, LINEAR_LUTS[transfer])
-    except (_RefineError, np.linalg.LinAlgError, cv2.error):
-        return start.copy()
+    except (_RefineError, np.linalg.LinAlgError, cv2.error) as exc:
+        return Refinement(start.copy(), str(exc) or type(exc).__name__)
     if np.any(np.linalg.norm(corners - start, axis=1) > max_shift_px):
-        return start.copy()
-    return corners
+        return Refinement(start.copy(), f"a corner moved more than {max_shift_px} px")
+    return Refinement(corners, None)

@@ -83,7 +83,7 @@ import subprocess, sys, time
 
 CHILD = (
     "import os, sys, time; from pathlib import Path; sys.platform = 'no-prctl'; "
-    "from bench.common.executor import exit_with_parent; exit_with_parent(os.getppid()); "
+    "from pipeline.lifetime import exit_with_parent; exit_with_parent(os.getppid()); "
     "Path(sys.argv[1], str(os.getpid())).touch(); time.sleep(600)"
 )
 
@@ -128,7 +128,7 @@ def test_workers_die_when_their_parent_is_killed(tmp_path, parent_code):
 @pytest.mark.skipif(sys.platform == "win32", reason="POSIX parent ids")
 def test_a_worker_whose_parent_is_already_gone_exits_at_once():
     """The race the parent-death signal cannot cover: the parent died before it was armed."""
-    code = "from bench.common.executor import exit_with_parent; exit_with_parent(-1); print('ran')"
+    code = "from pipeline.lifetime import exit_with_parent; exit_with_parent(-1); print('ran')"
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     result = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True)
     assert result.returncode == 1 and "ran" not in result.stdout

@@ -152,13 +152,15 @@ def test_synthetic_marker_recovers_known_corners():
     image = _draw_marker(TRUE_CORNERS)
     rng = np.random.default_rng(1)
     start = TRUE_CORNERS + rng.uniform(-0.8, 0.8, size=(4, 2))
-    refined = refine_corners_by_edges(image, start, camera, MODULES)
+    refined = refine_corners_by_edges(image, start, camera, MODULES).corners_px
     # The method is exact here up to sampling: errors are ~0.003 px (0.1 px is the spec).
     assert np.linalg.norm(refined - TRUE_CORNERS, axis=1).max() < 0.02
     # A crop gives the same corners, in full-image pixels.
     x0, y0 = 31, 24
     crop = image[y0 : y0 + 150, x0 : x0 + 140]
-    refined_crop = refine_corners_by_edges(crop, start, camera, MODULES, offset_px=(x0, y0))
+    refined_crop = refine_corners_by_edges(
+        crop, start, camera, MODULES, offset_px=(x0, y0)
+    ).corners_px
     np.testing.assert_allclose(refined_crop, refined, atol=1e-4)
 
 
@@ -226,7 +228,7 @@ def test_ray_cast_fisheye_marker_recovers_known_corners(alpha_deg, phi_deg):
     T_cam_marker = study_pose(alpha_deg, phi_deg, 200.0)
     crop, offset, truth = _ray_cast_marker(camera, T_cam_marker, 13.2)
     start = truth + np.random.default_rng(2).uniform(-0.7, 0.7, size=(4, 2))
-    refined = refine_corners_by_edges(crop, start, camera, MODULES, offset_px=offset)
+    refined = refine_corners_by_edges(crop, start, camera, MODULES, offset_px=offset).corners_px
     assert np.linalg.norm(refined - truth, axis=1).max() < 0.05
 
 
@@ -253,8 +255,9 @@ def test_failure_returns_the_input_corners(kind):
         start[2, 0] = np.nan
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # no RuntimeWarning either
-        refined = refine_corners_by_edges(image, start, camera, MODULES)
+        refined, failure = refine_corners_by_edges(image, start, camera, MODULES)
     np.testing.assert_array_equal(refined, start)
+    assert failure  # the fallback says why
     assert refined is not start and refined.dtype == np.float64
 
 

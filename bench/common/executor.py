@@ -15,18 +15,15 @@ its parent is gone.
 
 from __future__ import annotations
 
-import ctypes
 import multiprocessing
 import os
-import signal
-import sys
-import threading
-import time
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from typing import Any, TypeVar
 
 from tqdm import tqdm
+
+from pipeline.lifetime import exit_with_parent
 
 T = TypeVar("T")
 
@@ -35,36 +32,9 @@ EXECUTORS = ("inline", "pool", "dask")
 #: Seconds to wait for a Dask scheduler to answer before giving up.
 CONNECT_TIMEOUT_S = 10
 
-PR_SET_PDEATHSIG = 1  # from <linux/prctl.h>
-#: How often a worker's watch thread checks that its parent is alive (s).
-PARENT_POLL_S = 0.2
 
 # A worker process runs one pool's tasks: its context is set once, by _start_worker.
 _worker_context: Any = None
-
-
-def exit_with_parent(parent_pid: int) -> None:
-    """End this process as soon as ``parent_pid`` is no longer its parent (the parent died).
-
-    The kernel's parent-death signal acts at once but exists on Linux only, and fires when the
-    thread that started this process exits; the watch thread covers other systems, and a parent
-    that died before the signal was armed is caught by the first check.
-    """
-    if sys.platform.startswith("linux"):
-        try:
-            libc = ctypes.CDLL(None, use_errno=True)
-            libc.prctl(PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
-        except (OSError, AttributeError):
-            pass  # no prctl: the watch thread alone
-    if os.getppid() != parent_pid:
-        os._exit(1)
-
-    def watch() -> None:
-        while os.getppid() == parent_pid:
-            time.sleep(PARENT_POLL_S)
-        os._exit(1)
-
-    threading.Thread(target=watch, name="parent-watch", daemon=True).start()
 
 
 def _start_worker(parent_pid: int, setup: Callable[..., Any] | None, setup_args: tuple) -> None:

@@ -261,7 +261,7 @@ def _score_image(
         modules,
         origin,
         transfer=config.camera.processing.transfer,
-    )
+    ).corners_px
     for r, c in corners.items():
         row.update({f"det_{a}{k}_px_{r}": c[k, i] for k in range(4) for i, a in enumerate("xy")})
         errors, _ = score_corners(c, truth, lens)

@@ -1,0 +1,136 @@
+"""Peer backends in a worker process: a crash in native code costs one image, not the run.
+
+Some detector bindings corrupt the heap on some families (pupil-apriltags on tag16h5,
+CAMERA_NOTES.md) and take the whole process down; a hung one never returns. A backend marked
+``isolated`` therefore runs in a child process of its own (one per backend and parent process,
+started on first use and kept): the image goes over a socket, the :class:`Found` comes back. If
+the child dies or does not answer within :data:`TIMEOUT_S`, :func:`run_backend` raises
+:class:`BackendCrashError` naming the backend and the image's fate, and the next image starts a
+fresh child. The child is a plain ``python -m`` process (not ``multiprocessing``, which refuses
+children of daemonic processes such as Dask's workers) and dies with its parent.
+
+The cost, measured by ``whiskerbench bench pipeline`` (peers' frames/s include it): one copy
+of the image through the socket per call.
+"""
+
+from __future__ import annotations
+
+import atexit
+import os
+import socket
+import subprocess
+import sys
+from multiprocessing.connection import Connection
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.backends import Backend, BackendCrashError, Found, PoseRequest, get_backend, require
+
+#: Longest a backend may take on one image before it counts as hung (s).
+TIMEOUT_S = 120.0
+_ROOT = Path(__file__).resolve().parents[2]  # the project, for the child's imports
+
+
+class _Worker:
+    """One child process serving one backend for this process."""
+
+    def __init__(self, backend: Backend) -> None:
+        self.backend = backend
+        self.owner = os.getpid()  # a forked copy of this object must not use the socket
+        parent, child = socket.socketpair()
+        env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [str(_ROOT),
+                   os.environ.get("PYTHONPATH")])))  # fmt: skip
+        self.process = subprocess.Popen(
+            [sys.executable, "-m", "pipeline.backends.isolated", str(child.fileno()),
+             str(os.getpid())],
+            pass_fds=(child.fileno(),), env=env, stdin=subprocess.DEVNULL,
+        )  # fmt: skip
+        child.close()
+        self.conn = Connection(parent.detach())
+
+    def call(self, image: np.ndarray, config, side: int, pose: PoseRequest | None) -> Found:
+        try:
+            self.conn.send((self.backend, config, side, pose, image.shape))
+            self.conn.send_bytes(memoryview(image).cast("B"))
+            if not self.conn.poll(TIMEOUT_S):
+                self.close()
+                raise BackendCrashError(
+                    f"detector {self.backend.name} did not answer within {TIMEOUT_S:g} s on a "
+                    f"{image.shape[1]}x{image.shape[0]} image; its worker was stopped"
+                )
+            status, value = self.conn.recv()
+        except (EOFError, OSError):
+            code = self.process.wait()
+            self.close()
+            how = f"signal {-code}" if code < 0 else f"exit status {code}"
+            raise BackendCrashError(
+                f"detector {self.backend.name} crashed ({how}) on a "
+                f"{image.shape[1]}x{image.shape[0]} image; a fresh worker takes the next"
+            ) from None
+        if status == "error":
+            raise RuntimeError(f"detector {self.backend.name}: {value}")
+        return value
+
+    def close(self) -> None:
+        if self.owner != os.getpid():
+            return
+        try:
+            self.conn.close()
+        finally:
+            if self.process.poll() is None:
+                self.process.kill()
+                self.process.wait()
+
+
+_workers: dict[str, _Worker] = {}
+
+
+def run_backend(
+    image: np.ndarray, config, frame_side_px: int, pose: PoseRequest | None = None
+) -> Found:
+    """The backend's :class:`Found` for ``image``: in this process for ``opencv``, in the
+    backend's worker process for the peers."""
+    backend = get_backend(config.backend)
+    if not backend.isolated:
+        return backend.detect(image, config, frame_side_px, pose)
+    require(backend.name)  # not installed: say so here, before starting a process
+    worker = _workers.get(backend.name)
+    if worker is None or worker.owner != os.getpid() or worker.process.poll() is not None:
+        worker = _workers[backend.name] = _Worker(backend)
+    try:
+        return worker.call(image, config, frame_side_px, pose)
+    except BackendCrashError:
+        del _workers[backend.name]
+        raise
+
+
+@atexit.register
+def stop_workers() -> None:
+    """Stop this process's backend workers (they would also die with it)."""
+    for worker in _workers.values():
+        worker.close()
+    _workers.clear()
+
+
+def _serve(conn: Connection) -> None:
+    """The child's loop: an image in, its Found (or the Python error) out, until EOF."""
+    while True:
+        try:
+            backend, config, side, pose, shape = conn.recv()
+            buffer = conn.recv_bytes()
+        except EOFError:
+            return
+        image = np.frombuffer(buffer, np.uint8).reshape(shape)
+        try:
+            result = ("ok", backend.detect(image, config, side, pose))
+        except Exception as exc:  # noqa: BLE001 - reported to the parent, which raises it
+            result = ("error", f"{type(exc).__name__}: {exc}")
+        conn.send(result)
+
+
+if __name__ == "__main__":
+    from pipeline.lifetime import exit_with_parent
+
+    exit_with_parent(int(sys.argv[2]))
+    _serve(Connection(int(sys.argv[1])))
