@@ -52,7 +52,7 @@ bench: setup
 # The comparison's dataset: 24 outdoor samples (soft strips and dense leaves, 3 distances, no /
 # one / two branches), about 5 min to render; reruns skip what is done.
 COMPARE_DATASET ?= data/compare
-COMPARE_PIPELINES ?= paper,fast,robust,naive,paper/aruco3=on,paper/refine=contour,fast/search=full
+COMPARE_PIPELINES ?= paper,fast,robust,naive,paper/aruco3=on,paper/refine=contour,fast/search=full,locus,apriltag,robust/detector=locus,hybrid
 
 compare: setup
 	$(BIN)/whiskerbench dataset --protocol outdoor --foliage soft,dense \

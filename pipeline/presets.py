@@ -20,6 +20,11 @@ changes, for example ``paper/refine=contour/aruco3=on`` or ``fast/window=3-23-10
     integration, and the threshold inferred from the sample itself when none is given.
 ``naive``
     Full frame, no refinement, a pinhole pose that ignores the lens, per-whisker maximum.
+``hybrid``
+    The fastest finder with this project's tracking and corners: locus-tag detects (in the
+    ROI, the full frame only to (re)acquire), ``lines`` refines, then the virtual-view pose,
+    integration, fixed threshold. Built to be on or beyond every peer's Pareto front (frames/s,
+    marker recall, corner error; the README's comparison). Needs the peers extra.
 ``locus``, ``apriltag``
     The peers (:mod:`pipeline.backends`) as their authors ship them: the full frame, their own
     corners, then this project's virtual-view pose, integration and fixed threshold (the pose
@@ -99,6 +104,9 @@ PRESETS: dict[str, PipelineConfig] = {
     ),
     "naive": PipelineConfig(
         "naive", DetectorConfig(corner_refinement="none"), Search("full"), "pinhole", "max"
+    ),
+    "hybrid": PipelineConfig(
+        "hybrid", DetectorConfig(corner_refinement="lines", backend="locus"), Search("roi")
     ),
     **{
         peer: PipelineConfig(

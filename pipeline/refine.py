@@ -17,14 +17,17 @@ where two straight edges meet, so it is found here from the edges instead:
    corners, so the depths hold under perspective, and are sampled every half virtual pixel.
    Only these samples are rectified: each is mapped virtual pixel -> ray -> fisheye pixel and
    read with one bilinear ``cv2.remap`` of the (linearized) image.
-3. **Edge points.** Each profile is normalized between the edge's black level (a low
-   percentile of the inner samples, robust to the blur of neighbouring white code bits) and
-   its own white level (mean of its outer half, which follows shading). The halfway crossing
-   nearest the expected edge centres a window of +-2 px in which the edge position is the
-   window's outer end minus the area under the normalized profile. That area is preserved by
-   pixel-area sampling, bilinear reading and any point-symmetric blur, so the estimate is
-   unbiased whatever the edge's sub-pixel phase; the halfway crossing alone would be off by
-   up to 0.09 px.
+3. **Edge points.** Each profile is normalized between local levels (:func:`_normalized`):
+   black from a low percentile of the inner samples of it and its neighbours along the edge
+   (robust to the blur of neighbouring white code bits), white from its outer half, extended
+   with the slope of the light across the edge where the profile reaches beyond the edge's
+   blur, so uneven lighting does not bias the area. The halfway crossing nearest the expected
+   edge centres a window of +-4 blur sigmas (at least 2 px; the blur is measured from the
+   profiles) in which the edge position is the window's outer end minus the area under the
+   normalized profile. That area is preserved by pixel-area sampling, bilinear reading and
+   any point-symmetric blur or sharpening the window takes in, so the estimate is unbiased
+   whatever the edge's sub-pixel phase; the halfway crossing alone would be off by up to
+   0.09 px.
 4. **Lines and corners.** A straight line is fitted to each edge's points (total least
    squares; points beyond 3 robust sigmas of a first fit are dropped) and adjacent lines are
    intersected. Steps 2-4 run twice, the second time around the first pass's corners; the
@@ -32,7 +35,10 @@ where two straight edges meet, so it is found here from the edges instead:
 
 Intensities are linearized first (``transfer="srgb"``, the camera response's default transfer
 curve): areas and levels only add up in linear light; taken as linear, sRGB codes put the
-corners 0.1-0.3 px inside.
+corners 0.1-0.3 px inside. That holds where the blur happened before encoding (the lens, as in
+the camera twin). Blur after encoding (resampling, sharpening, JPEG) is linear in the codes:
+``transfer="linear"`` suits it better, though neither curve is exact when both kinds of blur
+act (tests/test_refine_real.py measures both).
 
 Accuracy (corner error against ground truth, px): on noise-free 64-spp renders of the
 detectability study (lab lighting, 200 mm, alpha 0-85 deg, phi 0-60 deg, where OpenCV finds
@@ -42,8 +48,9 @@ median 0.01. Cost: about 1 ms per marker for a 100-px crop, 10x OpenCV's detecti
 
 If refinement fails (too little contrast across an edge, an edge with too few consistent
 points or too much scatter about its line, nearly parallel edges, samples outside the image
-or its circle, or a corner moving more than ``max_shift_px`` from where it started) the input
-corners are returned unchanged: a bad image never raises.
+or its circle, or a corner moving more than half a module from where it started) the input
+corners are returned unchanged with the reason, one of :data:`FAILURES`: a bad image never
+raises.
 """
 
 from __future__ import annotations
@@ -64,11 +71,17 @@ OUTER_MODULES = 1.0  # profile length into the white quiet zone, in modules
 STEP_PX = 0.5  # largest sample spacing along a profile (virtual pixels, about image pixels)
 ALONG_STEP_PX = 1.0  # spacing of the profiles along an edge
 MIN_PROFILES, MAX_PROFILES = 6, 64  # per edge
-WINDOW_PX = 2.0  # half-width of the window in which an edge's position is measured
+WINDOW_PX = 2.0  # least half-width of the window in which an edge's position is measured
+WINDOW_SIGMAS = 4.0  # the window's half-width in units of the edge's blur (Gaussian sigma)
+RUN_PROFILES = 7  # profiles (odd) that share black level and white slope along an edge
+CLEAR_SIGMAS = 3.0  # the white slope is fitted this many blur sigmas beyond the edge
+MIN_SLOPE_SAMPLES = 4  # fewer samples beyond that: no slope
 BLACK_PERCENTILE = 15.0  # of the samples from 0.6 to 0.3 module inside an edge
 MIN_CONTRAST = 0.2  # (white - black) / white, in linear light
 MIN_INLIER_FRACTION = 0.6  # of an edge's profiles, to accept its line
 PASSES = 2
+MAX_SHIFT_MODULES = 0.5  # a corner moving further has latched onto another edge
+MIN_MAX_SHIFT_PX = 1.5  # the input corners' own pixel-level error, whatever the size
 
 _SQUARE = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])  # marker, in modules / M
 _ALONG = np.roll(_SQUARE, -1, axis=0) - _SQUARE  # edge k runs from corner k to corner k + 1
@@ -87,8 +100,26 @@ def _srgb_to_linear_lut() -> np.ndarray:
 LINEAR_LUTS = {"srgb": _srgb_to_linear_lut(), "linear": np.arange(256, dtype=np.float32) / 255.0}
 
 
+#: Every reason :func:`refine_corners_by_edges` gives for keeping the input corners: short,
+#: stable strings that callers may count.
+FAILURES = (
+    "bad corners",  # not finite, too few modules, out of order or degenerate
+    "too small",  # an edge shorter than 3/4 px per module
+    "too wide",  # the marker spans 180 degrees or more
+    "outside image",  # samples needed beyond the image or crop given
+    "outside image circle",
+    "low contrast",  # too few profiles with an edge of enough contrast
+    "too few edge points",
+    "edge scatter",  # edge points too far from their line
+    "parallel edges",
+    "moved too far",  # a corner beyond the shift limit
+    "numerical error",
+)
+
+
 class _RefineError(Exception):
-    """Internal: refinement failed; the caller keeps the input corners."""
+    """Internal: refinement failed (the message is one of :data:`FAILURES`); the caller keeps
+    the input corners."""
 
 
 def _to_fisheye(
@@ -118,7 +149,7 @@ def _edge_lines(
     """
     length = np.linalg.norm(corners_v[_PREV] - corners_v, axis=1)
     if length.min() < 3.0 * modules / 4:
-        raise _RefineError("marker too small")
+        raise _RefineError("too small")
     H = cv2.getPerspectiveTransform(
         (_SQUARE * modules).astype(np.float32), corners_v.astype(np.float32)
     )
@@ -128,7 +159,7 @@ def _edge_lines(
     )
     h = _profile_ends(n_along, modules) @ H.T
     if not (np.isfinite(h).all() and h[..., 2].min() > 0):
-        raise _RefineError("degenerate corners")
+        raise _RefineError("bad corners")
     ends = h[..., :2] / h[..., 2:]  # (3, 4, n_along, 2): in, edge and out ends, virtual pixels
     p_in, p_edge, p_out = ends
     delta = p_out - p_in
@@ -138,7 +169,7 @@ def _edge_lines(
     frac = np.linspace(0.0, 1.0, n_s)
     t_edge = ((p_edge - p_in) * delta).sum(axis=-1) / (span * span)  # where the edge should be
     if not (span.min() > 0 and t_edge.min() > 0.05 and t_edge.max() < 0.95):
-        raise _RefineError("degenerate corners")
+        raise _RefineError("bad corners")
     # A profile's image in the fisheye is a smooth curve: the quadratic through the images of
     # its ends and edge point is exact to well under 0.001 px over its few pixels.
     f_in, f_edge, f_out = to_patch(ends)
@@ -157,36 +188,107 @@ def _edge_lines(
         borderMode=cv2.BORDER_REPLICATE,
     ).reshape(4, n_along, n_s)
 
-    # Levels: black per edge from the inner half of the profiles' black part; white per
-    # profile from its outer half (it follows shading).
-    j_edge = t_edge * (n_s - 1)  # sample index of the edge
+    j_edge = t_edge * (n_s - 1)  # sample index of the expected edge
+    v, ok = _normalized(values, j_edge, None)
+    j, found = _crossings(v, ok, j_edge)
+    sigma = _blur_sigma(v, j, found, ds)
+    # again, now following light that falls off across the edge beyond the edge's blur
+    v, ok = _normalized(values, j_edge, CLEAR_SIGMAS * sigma / ds.min())
+    j, found = _crossings(v, ok, j_edge)
+    half_px = max(WINDOW_SIGMAS * sigma, WINDOW_PX)
+    edge = _edge_positions(v, j, found, half_px, ds)
+    found = np.isfinite(edge)
+    points = p_in + np.where(found, edge / (n_s - 1), t_edge)[..., None] * delta
+    return _fit_lines(points, found, max(0.1 * length.min() / modules, 0.15))
+
+
+def _runs(x: np.ndarray) -> np.ndarray:
+    """(4, n, ...) -> (4, n, RUN_PROFILES, ...): each profile with its neighbours along the edge
+    (the ends repeat the first and last), so that levels follow light that varies along it."""
+    n = x.shape[1]
+    r = RUN_PROFILES // 2
+    idx = np.clip(np.arange(n)[:, None] + np.arange(-r, r + 1), 0, n - 1)
+    return x[:, idx]
+
+
+def _normalized(
+    values: np.ndarray, j_edge: np.ndarray, clear: float | None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Profiles (4, n, n_s) scaled to 0 at their black level and 1 at their white level, and
+    whether each has the contrast to be used.
+
+    Both levels are local. Black: a low percentile of the inner half of the black part over a
+    run of neighbouring profiles (robust to the blur of neighbouring white code bits). White:
+    the mean of the outer half of the profile's white part, extended as a straight line whose
+    slope (pooled over the run) is fitted to the samples more than ``clear`` samples beyond the
+    edge, so that light falling off across the edge is followed; no slope where ``clear`` is
+    None or too few samples lie beyond it (the edge's blur would pass for a slope).
+    """
+    n_s = values.shape[2]
     c_in = int(0.5 * j_edge.min()) + 1
-    c_out = min(int(np.ceil((0.5 * (j_edge + n_s - 1)).max())), n_s - 1)
-    inner = values[:, :, :c_in].reshape(4, -1)
-    k = int(BLACK_PERCENTILE / 100.0 * (inner.shape[1] - 1))
-    black = np.partition(inner, k, axis=1)[:, k]
-    white = values[:, :, c_out:].mean(axis=2)
-    contrast = white - black[:, None]
-    ok = contrast >= MIN_CONTRAST * white
-    if np.any(ok.sum(axis=1) < MIN_INLIER_FRACTION * n_along):
-        raise _RefineError("too little contrast across an edge")
-    v = (values - black[:, None, None]) / np.where(ok, contrast, 1.0)[..., None]
-    # The halfway crossing (rising, inside -> outside) nearest the expected edge ...
+    c_out = min(int(np.ceil((0.5 * (j_edge + n_s - 1)).max())), n_s - 2)
+    inner = _runs(values[:, :, :c_in]).reshape(*values.shape[:2], -1)
+    k = int(BLACK_PERCENTILE / 100.0 * (inner.shape[2] - 1))
+    black = np.partition(inner, k, axis=2)[..., k]
+    mid = 0.5 * (c_out + n_s - 1)
+    white = np.broadcast_to(values[:, :, c_out:].mean(axis=2)[..., None], values.shape)
+    c_slope = n_s if clear is None else int(np.ceil(j_edge.max() + clear))
+    if n_s - c_slope >= MIN_SLOPE_SAMPLES:
+        x = np.arange(c_slope, n_s) - 0.5 * (c_slope + n_s - 1)
+        slope = _runs((values[:, :, c_slope:] * x).sum(axis=2) / (x * x).sum()).mean(axis=2)
+        white = white + slope[..., None] * (np.arange(n_s) - mid)
+    contrast = white - black[..., None]
+    ok = contrast.min(axis=2) >= MIN_CONTRAST * white.max(axis=2)
+    if np.any(ok.sum(axis=1) < MIN_INLIER_FRACTION * values.shape[1]):
+        raise _RefineError("low contrast")
+    return (values - black[..., None]) / np.where(ok[..., None], contrast, 1.0), ok
+
+
+def _crossings(v: np.ndarray, ok: np.ndarray, j_edge: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The halfway crossing (rising, inside -> outside) of each profile nearest the expected
+    edge, as the sample before it (4, n), and whether there is one."""
+    n_s = v.shape[2]
     rising = (v[..., :-1] < 0.5) & (v[..., 1:] >= 0.5)
     dist = np.where(rising, np.abs(np.arange(n_s - 1) + 0.5 - j_edge[..., None]), np.inf)
-    j = np.argmin(dist, axis=2)
     found = ok & (dist.min(axis=2) < np.inf)
-    # ... centres the window where the edge is its outer end minus the area under the profile.
-    half = min(int(np.ceil(WINDOW_PX / ds.min())), (n_s - 1) // 2)
+    if not found.any():
+        raise _RefineError("low contrast")
+    return np.argmin(dist, axis=2), found
+
+
+def _window(j: np.ndarray, half_px: float, ds: np.ndarray, n_s: int):
+    """The window of +-``half_px`` around each crossing: half-width and first sample (samples),
+    and the flat indices of its first and last samples."""
+    half = min(int(np.ceil(half_px / ds.min())), (n_s - 1) // 2)
     j_lo = np.minimum(np.maximum(j - half, 0), n_s - 1 - 2 * half)
-    flat_lo = (np.arange(4 * n_along) * n_s).reshape(4, n_along) + j_lo
-    flat_hi = flat_lo + 2 * half
+    lo = (np.arange(j.size) * n_s).reshape(j.shape) + j_lo
+    return half, j_lo, lo, lo + 2 * half
+
+
+def _blur_sigma(v: np.ndarray, j: np.ndarray, found: np.ndarray, ds: np.ndarray) -> float:
+    """The edges' blur, px: the Gaussian sigma with the same area under v (1 - v) (that area is
+    sigma / sqrt(pi) for a Gaussian edge), median over the profiles, measured in a window
+    that widens once to take in a wide blur."""
+    spread = np.cumsum(np.clip(v, 0, 1) * np.clip(1 - v, 0, 1), axis=2).ravel()
+    half_px = WINDOW_PX
+    for _ in range(2):
+        _, _, lo, hi = _window(j, half_px, ds, v.shape[2])
+        sigma = np.sqrt(np.pi) * float(np.median((spread[hi] - spread[lo])[found] * ds[found]))
+        half_px = max(WINDOW_SIGMAS * sigma, WINDOW_PX)
+    return sigma
+
+
+def _edge_positions(v: np.ndarray, j: np.ndarray, found: np.ndarray, half_px: float, ds):
+    """Each profile's edge (4, n), in samples from its inner end; NaN where none is found.
+
+    In a window of +-``half_px`` around the crossing, the edge is the window's outer end minus
+    the area under the profile.
+    """
+    half, j_lo, lo, hi = _window(j, half_px, ds, v.shape[2])
     v_flat, total = v.ravel(), np.cumsum(v, axis=2).ravel()
     # trapezoid area from sample j_lo to j_hi, in samples
-    area = total[flat_hi] - total[flat_lo] - 0.5 * (v_flat[flat_hi] - v_flat[flat_lo])
-    edge_frac = (j_lo + 2 * half - area) / (n_s - 1)
-    points = p_in + edge_frac[..., None] * delta
-    return _fit_lines(points, found, max(0.1 * length.min() / modules, 0.15))
+    area = total[hi] - total[lo] - 0.5 * (v_flat[hi] - v_flat[lo])
+    return np.where(found, j_lo + 2 * half - area, np.nan)
 
 
 def _fit_lines(
@@ -202,7 +304,7 @@ def _fit_lines(
     for step in range(2):
         count = keep.sum(axis=1)
         if count.min() < need:
-            raise _RefineError("an edge has too few consistent points")
+            raise _RefineError("too few edge points")
         w = keep / count[:, None]
         cx, cy = (w * x).sum(axis=1), (w * y).sum(axis=1)
         dx, dy = x - cx[:, None], y - cy[:, None]
@@ -217,7 +319,7 @@ def _fit_lines(
         sigma = 1.4826 * r_sorted[_EDGES, (count - 1) // 2]
         keep = found & (r <= np.maximum(3.0 * sigma, 0.05)[:, None])
     if ((keep * r * r).sum(axis=1) / count).max() > max_rms**2:
-        raise _RefineError("edge points scatter too much")
+        raise _RefineError("edge scatter")
     return np.stack([nx, ny], axis=1), nx * cx + ny * cy
 
 
@@ -226,7 +328,7 @@ def _intersect(normal: np.ndarray, offset: np.ndarray) -> np.ndarray:
     n1, n2, d1, d2 = normal[_PREV], normal, offset[_PREV], offset
     det = n1[:, 0] * n2[:, 1] - n1[:, 1] * n2[:, 0]
     if np.any(np.abs(det) < 0.1):  # sine of the angle between adjacent edges
-        raise _RefineError("nearly parallel edges")
+        raise _RefineError("parallel edges")
     return (
         np.stack([d1 * n2[:, 1] - d2 * n1[:, 1], n1[:, 0] * d2 - n2[:, 0] * d1], axis=1)
         / det[:, None]
@@ -239,15 +341,15 @@ def _refine(
     camera: FisheyeCamera,
     modules: int,
     offset: np.ndarray,
-    lut: np.ndarray,
+    transfer: str,
 ) -> np.ndarray:
     rays, valid = camera.unproject(start)
     if not valid.all():
-        raise _RefineError("a corner lies outside the image circle")
+        raise _RefineError("outside image circle")
     R_virt_cam = virtual_view_rotation(rays.sum(axis=0))
     q = rays @ R_virt_cam.T
     if np.any(q[:, 2] <= 1e-6):
-        raise _RefineError("the marker spans too wide an angle")
+        raise _RefineError("too wide")
     corners_v = q[:, :2] / q[:, 2:]
     f_v = (
         np.linalg.norm(start[_PREV] - start, axis=1).sum()
@@ -260,26 +362,27 @@ def _refine(
     hi = np.minimum(
         np.ceil(start.max(axis=0) - offset + margin) + 1, [image.shape[1], image.shape[0]]
     ).astype(int)
-    patch = lut[image[lo[1] : hi[1], lo[0] : hi[0]]]
+    codes = image[lo[1] : hi[1], lo[0] : hi[0]]
     shift = offset + lo
 
     def to_patch(virt: np.ndarray) -> np.ndarray:
         px = _to_fisheye(virt, camera, R_virt_cam, f_v) - shift
         if not np.isfinite(px).all():
-            raise _RefineError("edge samples outside the image circle")
+            raise _RefineError("outside image circle")
         if (
             px.min() < 0
-            or px[..., 0].max() > patch.shape[1] - 1
-            or px[..., 1].max() > patch.shape[0] - 1
+            or px[..., 0].max() > codes.shape[1] - 1
+            or px[..., 1].max() > codes.shape[0] - 1
         ):
-            raise _RefineError("edge samples leave the image")
+            raise _RefineError("outside image")
         return px
 
+    patch = LINEAR_LUTS[transfer][codes]
     for _ in range(PASSES):
         corners_v = _intersect(*_edge_lines(patch, corners_v, modules, to_patch))
     corners = _to_fisheye(corners_v, camera, R_virt_cam, f_v)
     if not np.isfinite(corners).all():
-        raise _RefineError("a refined corner lies outside the image circle")
+        raise _RefineError("outside image circle")
     return corners
 
 
@@ -298,7 +401,7 @@ def refine_corners_by_edges(
     offset_px: tuple[int, int] = (0, 0),
     *,
     transfer: str = "srgb",
-    max_shift_px: float = 2.5,
+    max_shift_px: float | None = None,
 ) -> Refinement:
     """Refine a marker's 4 corners from its straight border edges (see the module docstring).
 
@@ -309,8 +412,9 @@ def refine_corners_by_edges(
     that encoded the image, "srgb" or "linear".
 
     Returns the (4, 2) float64 corners in full-image pixels, ArUco order. If refinement fails,
-    or a corner would move more than ``max_shift_px``, they are (a copy of) the input corners
-    and ``failure`` says why.
+    or a corner would move more than ``max_shift_px`` (None: :data:`MAX_SHIFT_MODULES` of the
+    marker's mean module, at least :data:`MIN_MAX_SHIFT_PX`), they are (a copy of) the input
+    corners and ``failure`` says why, one of :data:`FAILURES`.
     """
     if transfer not in TRANSFERS:
         raise ValueError(f"transfer={transfer!r}: choose from {', '.join(TRANSFERS)}")
@@ -318,13 +422,18 @@ def refine_corners_by_edges(
         raise ValueError(f"need an 8-bit grey image, got {image.dtype} of shape {image.shape}")
     start = np.asarray(corners_px, dtype=float).reshape(4, 2)
     if not np.isfinite(start).all() or int(modules) < 3:
-        return Refinement(start.copy(), "corners not finite or too few modules")
+        return Refinement(start.copy(), "bad corners")
     offset = np.asarray(offset_px, dtype=float).reshape(2)
     try:
         with np.errstate(all="ignore"):  # failures are detected explicitly, not by warnings
-            corners = _refine(image, start, camera, int(modules), offset, LINEAR_LUTS[transfer])
-    except (_RefineError, np.linalg.LinAlgError, cv2.error) as exc:
-        return Refinement(start.copy(), str(exc) or type(exc).__name__)
+            corners = _refine(image, start, camera, int(modules), offset, transfer)
+    except _RefineError as exc:
+        return Refinement(start.copy(), str(exc))
+    except (np.linalg.LinAlgError, cv2.error):
+        return Refinement(start.copy(), "numerical error")
+    if max_shift_px is None:
+        module_px = np.linalg.norm(start[_PREV] - start, axis=1).mean() / int(modules)
+        max_shift_px = max(MAX_SHIFT_MODULES * module_px, MIN_MAX_SHIFT_PX)
     if np.any(np.linalg.norm(corners - start, axis=1) > max_shift_px):
-        return Refinement(start.copy(), f"a corner moved more than {max_shift_px} px")
+        return Refinement(start.copy(), "moved too far")
     return Refinement(corners, None)

@@ -2,23 +2,38 @@
 
 One row per frame and detected marker of the array (ids not on the array are dropped and
 counted); the columns are :data:`scenes.tables.TRACK`: corners, the pose T_cam_marker and its
-quality. They match the labels' (bench.dataset.labels): detections and truth join on
+quality, the detector backend's own pose where it has one and whether the refinement fell back.
+They match the labels' (bench.dataset.labels): detections and truth join on
 :data:`scenes.tables.JOIN_KEY`.
+
+A frame on which a peer backend crashes (:class:`pipeline.backends.BackendCrashError`: its
+worker died or hung) has no detections and is listed in ``TrackResult.failed_frames``; the run
+goes on with a fresh worker.
 """
 
 from __future__ import annotations
 
+from collections import Counter
 from collections.abc import Iterable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
 import pandas as pd
 
-from pipeline.detect import DetectorConfig, detect_markers
+from pipeline.backends import BackendCrashError
+from pipeline.detect import Detection, DetectorConfig, detect_markers
 from pipeline.pose import PoseEstimate, estimate_pose
 from scenes.camera import FisheyeCamera
-from scenes.tables import TRACK, corner_values, ordered, pose_values, rotations_of, translations_of
+from scenes.tables import (
+    OWN_POSE_PREFIX,
+    TRACK,
+    corner_values,
+    ordered,
+    pose_values,
+    rotations_of,
+    translations_of,
+)
 
 
 @dataclass(frozen=True)
@@ -41,6 +56,10 @@ class TrackResult:
     frames: int
     foreign_ids: int  # detections with an id that is not on the array (false detections)
     pose_failures: int
+    #: Frames on which the backend crashed (no detections there), in order.
+    failed_frames: list[int] = field(default_factory=list)
+    #: Why refinement "lines" kept the backend's corners: reason -> detections.
+    refine_failures: Counter[str] = field(default_factory=Counter)
 
 
 SEARCHES = ("full", "roi")
@@ -72,10 +91,13 @@ def track(
     search: Search = Search(),
     pose_method: str = "virtual",
 ) -> TrackResult:
-    """Detect the array's markers and estimate their poses in every frame."""
+    """Detect the array's markers and estimate their poses in every frame; the backend's own
+    pose is asked for where it has one."""
     whisker_of = {m: i for i, m in enumerate(markers.marker_ids)}
     rows: list[_Row] = []
     foreign = failures = n_frames = 0
+    crashed: list[int] = []
+    refine_failures: Counter[str] = Counter()
     last: dict[int, np.ndarray] = {}  # marker id -> corners in the previous frame
     since_full = 0
     circle = camera.image_circle_box()  # the "full frame": nothing outside it can be seen
@@ -94,23 +116,31 @@ def track(
         roi = box is not None
         since_full = since_full + 1 if roi else 0
         x0, y0, x1, y1 = box if roi else circle
-        found = detect_markers(frame[y0:y1, x0:x1], detector, (x0, y0), camera=camera)
+        try:
+            found = detect_markers(
+                frame[y0:y1, x0:x1], detector, (x0, y0), camera, own_pose_size_mm=markers.size_mm
+            )
+        except BackendCrashError:
+            crashed.append(f)
+            found = []
         seen: dict[int, np.ndarray] = {}
         for det in found:
             if det.marker_id not in whisker_of:
                 foreign += 1
                 continue
+            if det.refine_failure is not None:
+                refine_failures[det.refine_failure] += 1
             try:
                 pose = estimate_pose(det.corners_px, markers.size_mm, camera, pose_method)
             except ValueError:
                 failures += 1
                 continue
             seen[det.marker_id] = det.corners_px
-            rows.append(_Row(f, det.marker_id, whisker_of[det.marker_id], det.corners_px, pose))
+            rows.append(_Row(f, whisker_of[det.marker_id], det, pose))
         if roi and set(last) - set(seen):
             since_full = search.reacquire_every  # a tracked marker was lost: search it all next
         last = seen
-    return TrackResult(_table(rows), n_frames, foreign, failures)
+    return TrackResult(_table(rows), n_frames, foreign, failures, crashed, refine_failures)
 
 
 def _box(corners: np.ndarray, shape: tuple[int, ...], margin: int) -> tuple[int, int, int, int]:
@@ -122,23 +152,27 @@ def _box(corners: np.ndarray, shape: tuple[int, ...], margin: int) -> tuple[int,
 
 class _Row(NamedTuple):
     frame: int
-    marker_id: int
     whisker: int
-    corners_px: np.ndarray  # (4, 2)
+    detection: Detection
     pose: PoseEstimate
 
 
 def _table(rows: list[_Row]) -> pd.DataFrame:
     """The rows as a :data:`scenes.tables.TRACK` table (its dtypes even when empty)."""
     n = len(rows)
+    none = np.full((4, 4), np.nan)  # a backend without a pose of its own
+    own = [none if r.detection.own_T_cam_marker is None else r.detection.own_T_cam_marker
+           for r in rows]  # fmt: skip
     values = {
         "frame": [r.frame for r in rows],
-        "marker_id": [r.marker_id for r in rows],
+        "marker_id": [r.detection.marker_id for r in rows],
         "whisker": [r.whisker for r in rows],
-        **corner_values(np.array([r.corners_px for r in rows]).reshape(n, 4, 2)),
+        **corner_values(np.array([r.detection.corners_px for r in rows]).reshape(n, 4, 2)),
         **pose_values(np.array([r.pose.T_cam_marker for r in rows]).reshape(n, 4, 4)),
         "reprojection_err_px": [r.pose.reprojection_err_px for r in rows],
         "ambiguity_ratio": [r.pose.ambiguity_ratio for r in rows],
+        **pose_values(np.array(own).reshape(n, 4, 4), OWN_POSE_PREFIX),
+        "refine_failed": [r.detection.refine_failure is not None for r in rows],
     }
     return pd.DataFrame(ordered(TRACK, values))
 

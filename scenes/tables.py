@@ -3,7 +3,9 @@
 Three tables, one row per frame and marker, joined on :data:`JOIN_KEY`:
 
 ``TRACK``
-    what :func:`pipeline.track.track` returns: corners and pose of every detected marker;
+    what :func:`pipeline.track.track` returns: corners and pose of every detected marker, the
+    detector backend's own pose beside the project's (NaN where it has none) and whether the
+    corner refinement fell back;
 ``DETECTIONS``
     ``detections.parquet`` (``whiskerbench detect``): ``TRACK`` plus deflection and contact;
 ``LABELS``
@@ -50,6 +52,9 @@ ROTATION_COLUMNS: tuple[str, ...] = tuple(
 )
 #: The translation of T_cam_marker (mm).
 TRANSLATION_COLUMNS: tuple[str, ...] = tuple(f"t_cam_marker_{a}_mm" for a in "xyz")
+#: Prefix of the backend's own pose columns (:mod:`pipeline.backends`): ``own_R_cam_marker_{ij}``,
+#: ``own_t_cam_marker_{x,y,z}_mm``, read with ``rotations_of(table, prefix=OWN_POSE_PREFIX)``.
+OWN_POSE_PREFIX = "own_"
 #: The translation of T_marker0_marker (mm): the marker's displacement from its no-contact pose.
 DISPLACEMENT_COLUMNS: tuple[str, ...] = tuple(f"t_marker0_marker_{a}_mm" for a in "xyz")
 
@@ -69,6 +74,11 @@ _POSE: Schema = tuple(
     Column(name, "float64", "", f"T_cam_marker rotation [{name[-2]}, {name[-1]}]")
     for name in ROTATION_COLUMNS
 ) + tuple(Column(name, "float64", "mm", "T_cam_marker translation") for name in TRANSLATION_COLUMNS)
+#: The backend's own T_cam_marker, a pinhole's (both peers ignore the lens): NaN where none.
+_OWN_POSE: Schema = tuple(
+    Column(OWN_POSE_PREFIX + c.name, c.dtype, c.unit, f"backend's own {c.doc}; NaN: it has none")
+    for c in _POSE
+)
 _DEFLECTION = Column("deflection_mm", "float64", "mm", "hypot(x, y) of T_marker0_marker (SPEC 3)")
 _CONTACT = Column("contact", "bool", "", "the whisker touches something in this frame")
 
@@ -79,6 +89,8 @@ TRACK: Schema = (
     *_POSE,
     Column("reprojection_err_px", "float64", "px", "reprojection error of the chosen pose"),
     Column("ambiguity_ratio", "float64", "", "second-best / best reprojection error; inf: one"),
+    *_OWN_POSE,
+    Column("refine_failed", "bool", "", "refinement 'lines' kept the backend's corners"),
 )
 DETECTIONS: Schema = (*TRACK, _DEFLECTION, _CONTACT)
 LABELS: Schema = (
@@ -126,14 +138,15 @@ def corner_values(corners_px: np.ndarray) -> dict[str, np.ndarray]:
     }
 
 
-def pose_values(T_cam_marker: np.ndarray) -> dict[str, np.ndarray]:
-    """Rotation and translation columns of (..., 4, 4) poses T_cam_marker, flattened."""
+def pose_values(T_cam_marker: np.ndarray, prefix: str = "") -> dict[str, np.ndarray]:
+    """Rotation and translation columns of (..., 4, 4) poses T_cam_marker, flattened;
+    ``prefix`` :data:`OWN_POSE_PREFIX` names the backend's own pose columns."""
     T = np.asarray(T_cam_marker, dtype=float)
     rotation = T[..., :3, :3].reshape(-1, 9)
     translation = T[..., :3, 3].reshape(-1, 3)
     return {
-        **{name: rotation[:, k] for k, name in enumerate(ROTATION_COLUMNS)},
-        **{name: translation[:, k] for k, name in enumerate(TRANSLATION_COLUMNS)},
+        **{prefix + name: rotation[:, k] for k, name in enumerate(ROTATION_COLUMNS)},
+        **{prefix + name: translation[:, k] for k, name in enumerate(TRANSLATION_COLUMNS)},
     }
 
 
@@ -143,8 +156,8 @@ def displacement_values(t_marker0_marker: np.ndarray) -> dict[str, np.ndarray]:
     return {name: t[:, k] for k, name in enumerate(DISPLACEMENT_COLUMNS)}
 
 
-def _suffixed(columns: tuple[str, ...], suffix: str) -> list[str]:
-    return [name + suffix for name in columns]
+def _named(columns: tuple[str, ...], suffix: str, prefix: str) -> list[str]:
+    return [prefix + name + suffix for name in columns]
 
 
 def corners_of(table: Any, suffix: str = "") -> np.ndarray:
@@ -153,14 +166,14 @@ def corners_of(table: Any, suffix: str = "") -> np.ndarray:
     return table[flat].to_numpy(dtype=float).reshape(-1, 4, 2)
 
 
-def rotations_of(table: Any, suffix: str = "") -> np.ndarray:
-    """(N, 3, 3) rotations of T_cam_marker of a table's rows."""
-    return table[_suffixed(ROTATION_COLUMNS, suffix)].to_numpy(dtype=float).reshape(-1, 3, 3)
+def rotations_of(table: Any, suffix: str = "", prefix: str = "") -> np.ndarray:
+    """(N, 3, 3) rotations of T_cam_marker of a table's rows (``prefix``: see pose_values)."""
+    return table[_named(ROTATION_COLUMNS, suffix, prefix)].to_numpy(float).reshape(-1, 3, 3)
 
 
-def translations_of(table: Any, suffix: str = "") -> np.ndarray:
-    """(N, 3) translations of T_cam_marker (mm) of a table's rows."""
-    return table[_suffixed(TRANSLATION_COLUMNS, suffix)].to_numpy(dtype=float)
+def translations_of(table: Any, suffix: str = "", prefix: str = "") -> np.ndarray:
+    """(N, 3) translations of T_cam_marker (mm) of a table's rows (``prefix``: see pose_values)."""
+    return table[_named(TRANSLATION_COLUMNS, suffix, prefix)].to_numpy(dtype=float)
 
 
 def check_table(table: Any, schema: Schema, what: object) -> None:

@@ -78,3 +78,152 @@ def test_the_sweeps_use_the_datasets_camera_unless_told(rendered_pair, tmp_path)
     argv = ["compare", str(rendered_pair), "--quick", "--camera", "nope", "--out", str(out)]
     assert main(argv) == 2
     assert not out.exists()
+
+
+def _hand_summary() -> pd.DataFrame:
+    """Four pipelines, two of them on locus' detector; one measure tied."""
+    nan = float("nan")
+    return pd.DataFrame(
+        {
+            "pipeline": ["paper", "fast", "locus", "robust/detector=locus"],
+            "fps": [16.0, 150.0, 25.0, 20.0],
+            "recall": [0.98, 0.97, 1.0, 1.0],
+            "corner_err_px": [0.9, 1.1, 0.24, 0.1],
+            "own_rot_err_deg": [nan, nan, 3.0, 2.5],
+        }
+    )
+
+
+def _hand_edges() -> pd.DataFrame:
+    nan = float("nan")
+    rows = [
+        ("paper", "alpha_deg", 92.0, ""),
+        ("fast", "alpha_deg", 92.0, ""),
+        ("locus", "alpha_deg", nan, "0,40,92"),  # fails from the first level
+        ("robust/detector=locus", "alpha_deg", 40.0, "92"),
+        ("paper", "lighting", nan, "canopy"),
+        ("fast", "lighting", nan, "backlit,canopy"),
+        ("locus", "lighting", nan, ""),
+        ("robust/detector=locus", "lighting", nan, "canopy"),
+    ]
+    return pd.DataFrame(rows, columns=["pipeline", "axis", "last_ok", "failing"])
+
+
+def test_who_leads_on_a_hand_made_summary():
+    from bench.evaluate.leaders import is_peer, leader_lines, leaders
+
+    assert [is_peer(n) for n in _hand_summary()["pipeline"]] == [False, False, True, False]
+    assert is_peer("apriltag/refine=lines") and not is_peer("paper/detector=apriltag")
+    t = leaders(_hand_summary(), _hand_edges()).set_index("measure")
+    # only the measures present, summary first, then the boundary axes
+    assert list(t.index) == ["fps", "recall", "corner_err_px", "own_rot_err_deg", "alpha_deg",
+                             "lighting"]  # fmt: skip
+    fps = t.loc["fps"]
+    assert (fps["leader"], fps["value"]) == ("fast", 150.0)
+    assert (fps["best_peer"], fps["peer_value"]) == ("locus", 25.0)
+    recall = t.loc["recall"]  # a tie names both; the project's best is the locus-based robust
+    assert recall["leader"] == "locus, robust/detector=locus"
+    assert (recall["best_project"], recall["best_peer"]) == ("robust/detector=locus", "locus")
+    assert t.loc["corner_err_px", "leader"] == "robust/detector=locus"  # lower is better
+    own = t.loc["own_rot_err_deg"]  # NaN (OpenCV has no own pose) is not a value
+    assert (own["leader"], own["best_project"], own["best_peer"]) == (
+        "robust/detector=locus", "robust/detector=locus", "locus"
+    )  # fmt: skip
+    alpha = t.loc["alpha_deg"]
+    assert (alpha["leader"], alpha["value"]) == ("paper, fast", 92.0)
+    assert alpha["best_peer"] == "locus" and alpha["peer_value"] == -np.inf
+    lighting = t.loc["lighting"]  # fewest lightings failed
+    assert (lighting["leader"], lighting["value"]) == ("locus", 0.0)
+    assert (lighting["best_project"], lighting["project_value"]) == (
+        "paper, robust/detector=locus", 1.0
+    )  # fmt: skip
+    lines = leader_lines(leaders(_hand_summary(), _hand_edges()))
+    assert lines[0] == "frames/s: fast leads (150); best project pipeline fast (150); best peer " \
+        "locus (25)"  # fmt: skip
+    assert lines[1].startswith("marker recall: locus, robust/detector=locus lead (1);")
+    assert "best peer locus (fails from the first level)" in lines[4]
+    # change the values: the leader follows them
+    faster = _hand_summary().assign(fps=[16.0, 150.0, 200.0, 20.0])
+    t = leaders(faster).set_index("measure")
+    assert t.loc["fps", "leader"] == "locus" and t.loc["fps", "best_project"] == "fast"
+    assert "alpha_deg" not in t.index  # no sweeps, no boundary rows
+
+
+def _without_peers(monkeypatch):
+    """Every peer's library reported as not installed."""
+    from pipeline import backends
+
+    def missing(name, package):
+        def load():
+            raise backends.missing_library(name, package)
+
+        return load
+
+    for name, package in (("locus", "locus-tag"), ("apriltag", "apriltag-python")):
+        module = backends._adapter(backends.BACKENDS[name].adapter)
+        monkeypatch.setattr(module, "load", missing(name, package))
+
+
+def test_compare_refuses_a_missing_peer_in_one_line(monkeypatch, tmp_path, capsys):
+    from bench.cli.main import main
+
+    _without_peers(monkeypatch)
+    dataset, out = tmp_path / "data", tmp_path / "report"
+    dataset.mkdir()
+    argv = ["compare", str(dataset), "--pipelines", "paper,locus", "--quick", "--out", str(out)]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "locus-tag" in err and "pip install -e '.[peers]'" in err
+    assert not out.exists() and list(dataset.iterdir()) == []  # nothing written
+    out = tmp_path / "bench"
+    assert main(["bench", "pipeline", "--pipelines", "paper,locus", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "locus-tag" in err and not out.exists()
+
+
+def test_without_peers_the_default_pipelines_are_the_opencv_presets(monkeypatch):
+    from bench.cli.evaluate import _installed_presets
+
+    _without_peers(monkeypatch)
+    names = [p.name for p in _installed_presets()]
+    assert names == [n for n, p in PRESETS.items() if p.detector.backend == "opencv"]
+    assert "paper" in names and "locus" not in names
+
+
+def test_the_sweeps_refuse_a_family_a_backend_cannot_detect():
+    from bench.evaluate.sweep_config import SweepConfig
+    from bench.evaluate.sweeps import sweep_pipelines
+
+    sweep = SweepConfig(dictionary="apriltag_25h9")  # AprilTag 3 and OpenCV have it, locus not
+    with pytest.raises(ValueError, match="^pipeline 'locus' in the sweeps: detector locus cannot"):
+        sweep_pipelines([PRESETS["paper"], PRESETS["locus"]], sweep)
+    paper = sweep_pipelines([PRESETS["paper"]], sweep)[0]
+    assert paper.detector.dictionary == "apriltag_25h9"  # the sweep's family replaces its own
+
+
+@pytest.mark.slow
+def test_a_peer_runs_in_every_part_of_compare(rendered_pair, tmp_path):
+    from bench.evaluate.compare import run_compare
+    from bench.evaluate.sweep_config import QUICK_SWEEP
+    from pipeline.backends import available
+
+    if not available("locus"):
+        pytest.skip("locus-tag is not installed")
+    sweep = dataclasses.replace(
+        QUICK_SWEEP, alphas_deg=(0.0,), phis_deg=(30.0,), lightings=("lab",), blur_px=(0.0,),
+        read_noise_e=(3.0,), seeds=1, images=2,
+    )  # fmt: skip
+    out = tmp_path / "report"
+    variants = [PRESETS["paper"], PRESETS["locus"]]
+    summary = run_compare(rendered_pair, variants, out, sweep, speed_frames=2, speed_seconds=0.0)
+    locus = summary.set_index("pipeline").loc["locus"]
+    assert locus["fps"] > 0 and locus["recall"] > 0.9 and np.isfinite(locus["own_rot_err_deg"])
+    sweeps = pd.read_csv(out / "sweeps.csv").set_index("pipeline")
+    assert sweeps.loc["paper", "own_rot_err_deg"].isna().all()
+    assert np.isfinite(sweeps.loc["locus", "own_rot_err_deg"]).any()
+    assert (sweeps["backend_failures"] == 0).all()
+    leads = pd.read_csv(out / "leaders.csv").set_index("measure")
+    assert leads.loc["fps", "best_peer"] == "locus" and leads.loc["fps", "best_project"] == "paper"
+    report = (out / "report.md").read_text()
+    assert "## Who leads" in report and "- locus: no failed frames" in report
+    assert "](grids/locus-grid-outdoor-lab.png)" in report

@@ -300,6 +300,34 @@ CASES: list[tuple[str, str]] = [
     ("lens measure {fx}/black.mp4 --camera=ideal --out={out}.json", r"black\.mp4.*64 x 48"),
     ("lens measure {fx}/black.mp4 --camera={fx}/small.json --out={out}.json", r"no usable marker"),
     ("lens measure {fx}/nodataset --camera=ideal --out={out}.json", r"nodataset: no images"),
+    # issue 12: detect-images
+    ("detect-images {fx}/nodataset --pipelines=paper --out={out}", r"nodataset: no images"),
+    ("detect-images {fx}/nosuch.png --pipelines=paper --out={out}", r"nosuch\.png: no such"),
+    ("detect-images {fx}/afile --pipelines=paper --out={out}", r"afile: not an image name"),
+    ("detect-images {fx}/afile --pipelines=paper,paper --out={out}", r"--pipelines.*twice"),
+    ("detect-images {fx}/afile --pipelines=x --out={out}", r"--pipelines.*unknown preset"),
+    ("detect-images {fx}/afile --pipelines=paper --family=x --out={out}", r"--family.*unknown"),
+    (
+        "detect-images {fx}/afile --pipelines=locus --family=4x4_1000 --out={out}",
+        r"--family.*locus cannot detect family 4x4_1000",
+    ),  # fmt: skip
+    ("detect-images {fx}/afile --pipelines=paper --camera=nosuch --out={out}", r"--camera.*nosuch"),
+    (
+        "detect-images {fx}/afile --pipelines=paper --camera={fx}/cal_nan.yaml "
+        "--camera-format=kalibr --out={out}",
+        r"--camera.*intrinsics",
+    ),  # fmt: skip
+    ("detect-images {fx}/afile --pipelines=paper --camera-format=kalibr", r"--camera-format"),
+    # issue 12: --detector / --family (study, dataset)
+    (f"{S} --detector=aruco", r"--detector.*invalid choice.*opencv"),
+    (f"{S} --family=nan", r"--family/--dictionary.*unknown"),
+    (f"{S} --detector=locus --family=apriltag_25h9", r"--family.*locus cannot detect family"),
+    (f"{S} --detector=locus --dictionary=7x7_50", r"--dictionary.*locus cannot detect"),
+    (f"{S} --detector=locus --cell-px=8", r"--cell-px: 8: applies to --detector opencv only"),
+    ("bench detectability --detector=locus --family=5x5_100", r"--family.*locus cannot"),
+    ("dataset --family=nan", r"--family: .*unknown; choose one of"),
+    ("dataset --family=", r"--family: .*unknown"),
+    ("bench dataset --family=apriltag_99h1", r"--family: .*unknown"),
 ]
 
 

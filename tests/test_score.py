@@ -10,6 +10,7 @@ from bench.evaluate.score import branch_outcome, score_markers
 from scenes.conventions import make_T
 from scenes.tables import (
     CORNER_COLUMNS,
+    OWN_POSE_PREFIX,
     ROTATION_COLUMNS,
     TRANSLATION_COLUMNS,
     corner_values,
@@ -47,9 +48,15 @@ def _labels(n_frames: int = 3, n: int = 2) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
+def _detections(labels: pd.DataFrame) -> pd.DataFrame:
+    """The labels as a detector without a pose of its own (opencv) would report them."""
+    own = pose_values(np.full((len(labels), 4, 4), np.nan), OWN_POSE_PREFIX)
+    return labels.drop(columns=["visible"]).assign(**own)
+
+
 def test_marker_scores_count_misses_and_errors() -> None:
     labels = _labels()
-    det = labels.drop(columns=["visible"]).copy()
+    det = _detections(labels)
     det = det[~((det["frame"] == 2) & (det["marker_id"] == 1))]  # a planted miss
     det[CORNER_COLUMNS[0][0]] += 0.4  # one corner off by 0.4 px: mean corner error 0.1 px
     det[TRANSLATION_COLUMNS[0]] += 3.0
@@ -74,6 +81,6 @@ def test_marker_scores_count_misses_and_errors() -> None:
 def test_a_tracking_only_table_is_scored_without_deflection() -> None:
     """Detections straight from tracking (no deflection, no contact) against full labels."""
     labels = _labels()
-    det = labels.drop(columns=["visible", "deflection_mm", "contact"]).iloc[1:]
+    det = _detections(labels).drop(columns=["deflection_mm", "contact"]).iloc[1:]
     s = score_markers(det, labels)
     assert s["recall"] == pytest.approx(5 / 6) and "deflection_err_mm" not in s

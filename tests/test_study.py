@@ -51,14 +51,17 @@ def test_outputs(variant, tmp_path):
         assert column in images.columns, column
     frontal = images[(images.alpha_deg == 0) & (images.phi_deg == 0)]
     assert frontal.id_ok.all() and (frontal.corner_err_px_lines < 1.0).all()
+    assert set(images.detector) == {"opencv"} and not images.backend_failed.any()
     summary = pd.read_csv(out / "summary.csv")
+    assert set(summary.detector) == {"opencv"} and (summary.backend_failures == 0).all()
     assert {"rate_lo", "rate_hi", "detection_rate", "decided"} <= set(summary.columns)
     assert {"trans_err_mm_lines_p95", "trans_err_mm_subpix_max"} <= set(summary.columns)
     assert (summary.rate_lo <= summary.detection_rate).all()
     assert len(pd.read_csv(out / "max_phi.csv")) == 2
     written = json.loads((out / "manifest.json").read_text())
     assert written["variant"] == variant and written["seed"] == 0
-    assert written["camera_profile"] == "prototype"
+    assert written["camera_profile"] == "prototype" and written["backend_failures"] == {}
+    assert (written["detector"], written["family"]) == ("opencv", "4x4_50")
     assert written["versions"]["mitsuba"] and written["images_per_s"] > 0
     assert set(written["wall_s"]) >= {"cells_s", "tables_s", "plots_s", "total_s"}
     assert sum(written["images_per_cell"].values()) == len(images) == written["images_total"]

@@ -246,3 +246,35 @@ def test_a_sweep_runs_on_the_prototype_twin_with_its_own_read_noise(variant):
     assert len(table) == 5 and table["recall"].between(0, 1).all()
     base = table[table["axis"] == "alpha_deg"]
     assert len(base) == 1
+
+
+def test_a_backend_crash_is_counted_apart_and_not_as_a_miss(monkeypatch):
+    from bench.common.marker_score import MarkerTruth
+    from bench.evaluate import sweeps
+    from pipeline.backends import BackendCrashError
+    from pipeline.detect import Detection
+
+    lens = load_profile("ideal").lens
+    T = np.diag([1.0, -1.0, -1.0, 1.0])  # facing the camera, 200 mm away
+    T[2, 3] = 200.0
+    truth = MarkerTruth.of(lens, 0, 13.2, T)
+    outcomes = iter(["crash", "hit", "miss", "crash"])
+    own = T.copy()
+    own[0, 3] += 3.0  # the backend's own pose: 3 mm off, rotation exact
+
+    def detect(image, detector, origin, camera, size_mm):
+        outcome = next(outcomes)
+        if outcome == "crash":
+            raise BackendCrashError("detector locus crashed (signal 6)")
+        assert size_mm == 13.2  # the own pose is asked for with the marker's side
+        return [Detection(0, truth.corners_px + [0.3, 0.4], own)] if outcome == "hit" else []
+
+    monkeypatch.setattr(sweeps, "detect_markers", detect)
+    images = np.zeros((4, 8, 8), np.uint8)
+    row = sweeps.score_images(PRESETS["locus"], images, (0, 0), truth, lens)
+    assert (row["images"], row["backend_failures"]) == (4, 2)
+    assert row["recall"] == 0.5  # one hit of the two images it did not crash on
+    assert row["corner_err_px"] == pytest.approx(0.5)
+    assert row["own_trans_err_mm"] == pytest.approx(3.0)
+    assert row["own_rot_err_deg"] == pytest.approx(0.0, abs=1e-6)
+    assert np.isfinite(row["rot_err_deg"])  # the project's pose on the backend's corners

@@ -50,7 +50,7 @@ def _labels(n_frames: int = 3) -> pd.DataFrame:
     return label_table(default_camera(), SPEC, angles, flags, ~flags, frames / 30.0, 2 * frames)
 
 
-def _frame_with_marker(marker_id: int) -> np.ndarray:
+def frame_with_marker(marker_id: int) -> np.ndarray:
     """A grey frame of the default camera with one upright marker near the image centre."""
     camera = default_camera()
     frame = np.full((camera.height_px, camera.width_px), 128, np.uint8)
@@ -69,7 +69,7 @@ def test_the_labels_writer_writes_the_labels_schema() -> None:
 
 def test_the_pipeline_writes_the_track_schema_with_and_without_detections() -> None:
     markers = MarkerSet(SPEC.marker_ids, SPEC.marker_size_mm)
-    marked = _frame_with_marker(SPEC.marker_ids[3])
+    marked = frame_with_marker(SPEC.marker_ids[3])
     frames = [marked, np.full_like(marked, 128)]
     result = track(frames, default_camera(), markers, DetectorConfig())
     _assert_matches(result.detections, TRACK)

@@ -1,16 +1,33 @@
-"""Tracking a video: rows for the array's markers, poses against labels, foreign ids counted."""
+"""Tracking a video: rows for the array's markers, poses against labels, foreign ids counted,
+a backend's own pose beside the project's, a backend's crash costing its frame only."""
 
 from __future__ import annotations
+
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import pytest
+from test_tables import SPEC, frame_with_marker
 
+from pipeline.backends import BACKENDS, Backend, available
+from pipeline.backends.isolated import stop_workers
 from pipeline.detect import DetectorConfig
 from pipeline.track import MarkerSet, Search, pose_arrays, track
 from scenes.camera import default_camera
 from scenes.profile import load_profile
-from scenes.tables import JOIN_KEY, TRUTH_SUFFIX, corners_of, pose_values, translations_of
+from scenes.tables import (
+    JOIN_KEY,
+    OWN_POSE_PREFIX,
+    TRUTH_SUFFIX,
+    corners_of,
+    pose_values,
+    rotations_of,
+    translations_of,
+)
+
+ROOT = Path(__file__).resolve().parents[1]
+MARKERS = MarkerSet(SPEC.marker_ids, SPEC.marker_size_mm)
 
 
 def test_pose_arrays_places_rows_and_leaves_nan_where_unseen() -> None:
@@ -82,3 +99,60 @@ def test_roi_tracking_finds_what_full_frame_search_finds(rendered) -> None:
 def test_search_rejects_unknown_mode() -> None:
     with pytest.raises(ValueError, match="choose from"):
         Search("everywhere")
+
+
+# -- backends: own poses and crashes ----------------------------------------------------------
+
+
+def test_opencv_has_no_own_pose_and_nothing_fell_back() -> None:
+    frame = frame_with_marker(SPEC.marker_ids[2])
+    result = track([frame], default_camera(), MARKERS, DetectorConfig())
+    table = result.detections
+    assert len(table) == 1 and np.isfinite(translations_of(table)).all()
+    assert np.isnan(translations_of(table, prefix=OWN_POSE_PREFIX)).all()
+    assert np.isnan(rotations_of(table, prefix=OWN_POSE_PREFIX)).all()
+    assert not table["refine_failed"].any() and not result.refine_failures
+    assert result.failed_frames == []
+
+
+@pytest.mark.skipif(not available("locus"), reason="locus-tag not installed (the peers extra)")
+def test_locus_reports_its_own_pose_beside_the_projects() -> None:
+    """A marker facing the camera near the image centre: locus' pinhole pose agrees with the
+    project's fisheye pose to within the lens' difference there (a few mm, a few degrees).
+    Moved off the optical axis: there every pose method finds a half-turned pose."""
+    frame = np.roll(frame_with_marker(SPEC.marker_ids[4]), (37, 53), axis=(0, 1))
+    detector = DetectorConfig(backend="locus", corner_refinement="none")
+    table = track([frame], default_camera(), MARKERS, detector).detections
+    assert len(table) == 1
+    own_t = translations_of(table, prefix=OWN_POSE_PREFIX)[0]
+    own_R = rotations_of(table, prefix=OWN_POSE_PREFIX)[0]
+    assert np.isfinite(own_t).all() and np.isfinite(own_R).all()
+    np.testing.assert_allclose(own_R @ own_R.T, np.eye(3), atol=1e-6)
+    t = translations_of(table)[0]
+    assert np.linalg.norm(own_t - t) < 0.1 * np.linalg.norm(t)
+    cos = (np.trace(own_R.T @ rotations_of(table)[0]) - 1) / 2
+    assert np.degrees(np.arccos(np.clip(cos, -1, 1))) < 10
+
+
+@pytest.fixture
+def crashing(monkeypatch):
+    """A peer that aborts its worker process on an all-black image (tests/crashing_backend.py)."""
+    from crashing_backend import MODULE
+
+    monkeypatch.syspath_prepend(str(ROOT))  # the parent imports it by the worker's name too
+    row = Backend("crashing", MODULE, ("4x4_50",), "test", own_pose=False, isolated=True)
+    monkeypatch.setitem(BACKENDS, row.name, row)
+    yield DetectorConfig(backend=row.name, corner_refinement="none")
+    stop_workers()
+
+
+def test_a_backend_crash_costs_its_frame_and_the_run_goes_on(crashing) -> None:
+    marked = frame_with_marker(SPEC.marker_ids[5])
+    black = np.zeros_like(marked)
+    frames = [marked, black, marked, black, marked]
+    result = track(frames, default_camera(), MARKERS, crashing)
+    assert result.frames == 5 and result.failed_frames == [1, 3]
+    assert result.detections["frame"].tolist() == [0, 2, 4]
+    assert set(result.detections["whisker"]) == {5}
+    roi = track(frames, default_camera(), MARKERS, crashing, Search("roi"))
+    assert roi.failed_frames == [1, 3] and roi.detections["frame"].tolist() == [0, 2, 4]

@@ -5,8 +5,11 @@ outside the band), in time order around the largest deflection of a busy sample 
 branch), so ROI tracking sees real motion. OpenCV runs on one thread. Each pipeline's tracking
 (detection and pose of every frame; the branch stages after it are a few ms per sample) is
 repeated until it has run for ``min_seconds`` and the fastest repeat counts: these machines are
-shared, and a slower repeat is another process's noise, not the pipeline's. Recall on the same
-frames is printed beside each speed, so a fast pipeline that misses markers shows it.
+shared, and a slower repeat is another process's noise, not the pipeline's. Recall and corner
+error on the same frames are printed beside each speed, so a fast pipeline that misses markers
+or places corners badly shows it, and then who leads on each measure, the best peer detector
+beside the best project pipeline (:mod:`bench.evaluate.leaders`, the wording of ``compare``'s
+report). Peers run in their worker process; their frames/s include it.
 """
 
 from __future__ import annotations
@@ -15,17 +18,25 @@ import os
 from pathlib import Path
 
 import cv2
+import pandas as pd
 
 from bench.common.atomic import write_json
 from bench.common.manifest import RunClock, build_manifest, claim_out, hash_files, write_manifest
 from bench.dataset.config import DatasetConfig
+from bench.evaluate.leaders import leader_lines, leaders
 from bench.evaluate.score import score_markers
 from bench.evaluate.speed import SPEED_SAMPLE, full_frames, one_opencv_thread, time_pipeline
+from pipeline.backends import require
 from pipeline.presets import PipelineConfig
 from renderers.variant import init_worker
 
 #: frames/s each preset should reach (the issue's targets); others have none.
 TARGET_FPS = {"paper": 15.0, "fast": 100.0}
+#: What is scored on the timed frames (:func:`bench.evaluate.score.score_markers`), where given.
+MEASURES = (
+    "recall", "corner_err_px", "rot_err_deg", "trans_err_mm", "own_rot_err_deg",
+    "own_trans_err_mm",
+)  # fmt: skip
 
 
 def bench_pipeline(
@@ -36,11 +47,16 @@ def bench_pipeline(
     variant: str | None = None,
     out: Path | None = None,
 ) -> dict:
-    """Print and return frames/s, ratio to the first pipeline, and recall, per pipeline.
+    """Print and return frames/s, ratio to the first pipeline, recall and the errors
+    (:data:`MEASURES`) per pipeline, and who leads.
 
-    With ``out``, also write ``bench.json`` and ``manifest.json`` there; the folder is claimed
-    before any work (FieldError on ``out`` if another command's).
+    A peer that is not installed is refused first
+    (:class:`pipeline.backends.BackendUnavailableError`). With ``out``, also write
+    ``bench.json`` and ``manifest.json`` there; the folder is claimed before any work
+    (FieldError on ``out`` if another command's).
     """
+    for backend in dict.fromkeys(p.detector.backend for p in pipelines):
+        require(backend)
     clock = RunClock()
     if out is not None:
         claim_out(out, "bench-pipeline")
@@ -50,8 +66,9 @@ def bench_pipeline(
         rows = []
         for pipeline in pipelines:
             fps, detections = time_pipeline(images, config, pipeline, min_seconds)
-            recall = score_markers(detections, labels)["recall"]
-            rows.append({"pipeline": pipeline.name, "fps": fps, "recall": recall})
+            scores = score_markers(detections, labels)
+            measured = {k: float(scores[k]) for k in MEASURES if k in scores}
+            rows.append({"pipeline": pipeline.name, "fps": fps, **measured})
     base = rows[0]
     h, w = images[0].shape
     print(f"{len(images)} frames of {w}x{h} px, one core; ratio against {base['pipeline']}")
@@ -67,14 +84,20 @@ def bench_pipeline(
         )
         print(
             f"{row['pipeline']:>12}: {row['fps']:7.1f} frames/s  {row['ratio']:5.2f}x  "
-            f"recall {row['recall']:.3f} ({row['recall_pp_vs_base']:+.1f} pp){verdict}"
+            f"recall {row['recall']:.3f} ({row['recall_pp_vs_base']:+.1f} pp)  "
+            f"corner error {row['corner_err_px']:.3f} px{verdict}"
         )
+    leads = leaders(pd.DataFrame(rows))
+    print("who leads:")
+    for line in leader_lines(leads):
+        print(f"  {line}")
     figures = {
         "frames": len(images),
         "frame_px": [w, h],
         "cpu_count": os.cpu_count(),
         "opencv": cv2.__version__,
         "pipelines": rows,
+        "leaders": leads.to_dict("records"),
     }
     if out is not None:
         write_json(Path(out) / "bench.json", figures)

@@ -14,6 +14,7 @@ from bench.dataset.config import (
     DEFAULT_PROFILE,
     DEFAULT_PROTOCOLS,
     DatasetConfig,
+    array_of_family,
     branches_name,
 )
 from bench.study.config import profile_from_option
@@ -51,6 +52,7 @@ OPTION_OF_FIELD = {
     "seed": "--seed",
     "dataset_grid": "--foliage x --distance x --branches x --protocol x --lighting",
     "frames": "--frames",
+    "family": "--family",
 }
 
 
@@ -133,6 +135,11 @@ def add_dataset_options(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--full-frame", action="store_true", help="render whole frames, not just the band"
     )
+    p.add_argument(
+        "--family",
+        help="marker family of the array, one a detector decodes: 4x4_50, apriltag_36h11, "
+        "apriltag_16h5, ... (OpenCV's dictionary names; default 4x4_50)",
+    )
     p.add_argument("--seed", type=seed, default=0, help="random seed, 0..2**32-1 (default 0)")
     p.add_argument(
         "--variant",
@@ -146,6 +153,7 @@ def dataset_config(args: argparse.Namespace) -> DatasetConfig:
     """The DatasetConfig the options describe (--quick fills what was not given)."""
     quick = QUICK if args.quick else {}
     camera = {} if args.camera is None else {"camera": profile_from_option(args.camera)}
+    array = {} if args.family is None else {"array": array_of_family(args.family)}
     sampling = FrameSampling(
         marker_spp=args.spp, subframes=args.subframes, full_frame=args.full_frame
     )
@@ -165,6 +173,7 @@ def dataset_config(args: argparse.Namespace) -> DatasetConfig:
         exposure=args.exposure,
         sampling=sampling,
         **camera,
+        **array,
     )
 
 

@@ -5,12 +5,14 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 import math
 import sys
 from pathlib import Path
 
 from bench.cli import limits
 from bench.cli.args import add_executor_options, check_executor, check_out_folder, name_list
+from pipeline.backends import PEERS_INSTALL
 from pipeline.presets import CHOICES, PRESETS, PipelineConfig, get_pipeline
 from renderers.variant import VARIANTS
 from scenes.validation import FieldError
@@ -67,6 +69,9 @@ def cmd_detect(args: argparse.Namespace) -> int:
     threshold = args.foliage_threshold
     if threshold is not None and not (math.isfinite(threshold) and threshold >= 0):
         return fail(f"--foliage-threshold: {threshold}: must be a finite number >= 0 mm")
+    missing = _missing_detector(args.pipeline)
+    if missing:
+        return fail(missing)
     try:
         camera = load_profile(args.camera).lens
     except ProfileError as exc:
@@ -95,7 +100,38 @@ def cmd_detect(args: argparse.Namespace) -> int:
         print(
             f"warning: markers of whiskers {record['unseen_markers']} never seen", file=sys.stderr
         )
+    if record["failed_frames"]:
+        print(
+            crash_warning(args.video, record["detector"], record["failed_frames"]), file=sys.stderr
+        )
+    fell_back = sum(record["refine_failures"].values())
+    if fell_back:
+        print(
+            f"warning: corner refinement 'lines' kept the detector's corners of {fell_back} "
+            f"detections (why: {out}/branches.json, refine_failures)",
+            file=sys.stderr,
+        )
     return 0
+
+
+def _missing_detector(pipeline: PipelineConfig) -> str | None:
+    """Why the pipeline's detector backend cannot run here (not installed: how to get it)."""
+    from pipeline.backends import BackendUnavailableError, require
+
+    try:
+        require(pipeline.detector.backend)
+    except BackendUnavailableError as exc:
+        return f"--pipeline {pipeline.name}: {exc}"
+    return None
+
+
+def crash_warning(where: object, backend: str, frames: list[int]) -> str:
+    """The stderr line for the frames a detector backend crashed on (10 of them named)."""
+    named = ", ".join(map(str, frames[:10])) + (", ..." if len(frames) > 10 else "")
+    return (
+        f"warning: {where}: detector {backend} crashed on {len(frames)} frames ({named}); "
+        "they have no detections"
+    )
 
 
 def add_score_options(p: argparse.ArgumentParser) -> None:
@@ -130,6 +166,9 @@ def cmd_score(args: argparse.Namespace) -> int:
 
     if not args.dataset.is_dir():
         return fail(f"{args.dataset}: not a dataset folder")
+    missing = _missing_detector(args.pipeline)
+    if missing:
+        return fail(missing)
     out = args.out or args.dataset / "scores" / args.pipeline.folder_name
     try:
         check_out_folder(out)
@@ -154,7 +193,29 @@ def cmd_score(args: argparse.Namespace) -> int:
     )
     for row in refused.itertuples():
         print(f"warning: {row.sample_id} refused: {row.refused_reason}", file=sys.stderr)
+    for row in table.itertuples():
+        if getattr(row, "failed_frames", 0) > 0:  # NaN (refused) is not
+            frames = json.loads(row.failed_frame_ids)
+            print(
+                crash_warning(row.sample_id, args.pipeline.detector.backend, frames),
+                file=sys.stderr,
+            )
     return 0
+
+
+#: What --pipelines of compare and bench pipeline default to.
+DEFAULT_PIPELINES_HELP = (
+    f"every preset whose detector is installed ({','.join(PRESETS)}; the peers need "
+    f"{PEERS_INSTALL})"
+)
+
+
+def _installed_presets() -> list[PipelineConfig]:
+    """Every preset whose detector can run here: a peer asked for by name and missing is
+    refused, but a default without the optional peers still runs."""
+    from pipeline.backends import available
+
+    return [p for p in PRESETS.values() if available(p.detector.backend)]
 
 
 def add_compare_options(p: argparse.ArgumentParser) -> None:
@@ -162,11 +223,10 @@ def add_compare_options(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--pipelines",
         type=_pipelines,
-        default=[PRESETS[n] for n in PRESETS],
         metavar="NAME,...",
         help="variants to compare, comma-separated; each "
         + VARIANT_HELP
-        + f" (default {','.join(PRESETS)})",
+        + f" (default {DEFAULT_PIPELINES_HELP})",
     )
     p.add_argument("--out", type=Path, help="report folder (default <dataset>/compare)")
     p.add_argument(
@@ -202,12 +262,15 @@ def _sweep_camera(option: str | None, dataset: Path):
 
 def cmd_compare(args: argparse.Namespace) -> int:
     from bench.evaluate.compare import run_compare
+    from bench.evaluate.score import dataset_family
     from bench.evaluate.sweep_config import QUICK_SWEEP, SweepConfig
+    from pipeline.backends import BackendUnavailableError
 
     def fail(message: str) -> int:
         print(f"whiskerbench compare: error: {' '.join(message.split())}", file=sys.stderr)
         return 2
 
+    args.pipelines = args.pipelines or _installed_presets()
     if args.quick:
         sweep = QUICK_SWEEP
     elif args.seeds < 5:
@@ -232,6 +295,9 @@ def cmd_compare(args: argparse.Namespace) -> int:
         camera = _sweep_camera(args.camera, args.dataset)
         if camera is not None:
             sweep = dataclasses.replace(sweep, camera=camera)
+        family = dataset_family(args.dataset)
+        if family is not None:  # the sweeps render the dataset's marker family
+            sweep = dataclasses.replace(sweep, dictionary=family)
         summary = run_compare(
             args.dataset,
             args.pipelines,
@@ -242,7 +308,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
             executor=executor,
             scheduler=args.scheduler,
         )
-    except (ValueError, FileNotFoundError) as exc:
+    except (ValueError, FileNotFoundError, BackendUnavailableError) as exc:
         return fail(str(exc))
     for row in summary.itertuples():
         print(
@@ -257,9 +323,8 @@ def add_bench_pipeline_options(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--pipelines",
         type=_pipelines,
-        default=[PRESETS[n] for n in PRESETS],
         metavar="NAME,...",
-        help=f"variants to time; ratios are against the first (default {','.join(PRESETS)})",
+        help=f"variants to time; ratios are against the first (default {DEFAULT_PIPELINES_HELP})",
     )
     p.add_argument("--frames", type=int, default=30, help="full frames to time (default 30)")
     p.add_argument("--out", type=Path, help="also write bench.json into this folder")
@@ -272,6 +337,7 @@ def cmd_bench_pipeline(args: argparse.Namespace) -> int:
     from bench.benchmarks.pipeline import bench_pipeline
     from bench.dataset.config import DatasetConfigError
     from bench.evaluate.speed import SPEED_SAMPLE
+    from pipeline.backends import BackendUnavailableError
 
     if args.frames < 2:
         raise DatasetConfigError("frames", f"{args.frames}: must be >= 2")
@@ -279,5 +345,10 @@ def cmd_bench_pipeline(args: argparse.Namespace) -> int:
     limits.check_frames("frames", args.frames, lens.width_px, lens.height_px, "full frames")
     if args.out is not None:
         check_out_folder(args.out)
-    bench_pipeline(args.pipelines, frames=args.frames, variant=args.variant, out=args.out)
+    pipelines = args.pipelines or _installed_presets()
+    try:
+        bench_pipeline(pipelines, frames=args.frames, variant=args.variant, out=args.out)
+    except BackendUnavailableError as exc:  # refused before any work
+        print(f"whiskerbench bench pipeline: error: --pipelines: {exc}", file=sys.stderr)
+        return 2
     return 0

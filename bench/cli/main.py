@@ -7,6 +7,7 @@ an internal error a short bug report and exit code 1; Ctrl-C exit code 130 and w
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import re
 import sys
 import traceback
@@ -33,6 +34,7 @@ from bench.cli.evaluate import (
     cmd_detect,
     cmd_score,
 )
+from bench.cli.images import add_images_parser
 from bench.cli.lens import add_lens_parser
 from bench.cli.render import add_bench_render_parser
 from bench.cli.scale import add_scale_options, cmd_bench_scale
@@ -46,6 +48,7 @@ from bench.study.config import (
     detector_from_option,
     profile_from_option,
 )
+from pipeline.backends import BACKENDS
 from scenes.profile import profile_path
 from scenes.validation import FieldError
 
@@ -57,7 +60,7 @@ OPTION_OF_FIELD = {
     "images": "--images",
     "distance_mm": "--distance",
     "lightings": "--lighting",
-    "dictionary": "--dictionary",
+    "dictionary": "--family/--dictionary",
     "spp": "--spp",
     "out": "--out",
     "variant": "--variant",
@@ -67,7 +70,8 @@ OPTION_OF_FIELD = {
     "camera": "--camera",
     "psf_scales": "--psf-scale",
     "exposure": "--exposure",
-    "detector": "--cell-px",
+    "detector": "--detector",
+    "cell_px": "--cell-px",
     "seed": "--seed",
     "study_grid": "--sizes x --alphas x --phis x --lighting",
     "full_frame_cells": "--full-frame-cells",
@@ -159,7 +163,21 @@ def _add_study_options(p: argparse.ArgumentParser) -> None:
         default=["sun"],
         help="one or more of lab, sun, canopy, backlit (default sun)",
     )
-    p.add_argument("--dictionary", default="4x4_50", help="ArUco dictionary (default 4x4_50)")
+    p.add_argument(
+        "--detector",
+        choices=tuple(BACKENDS),
+        default="opencv",
+        help="which library finds the markers: opencv (its subpix corners), or a peer with its "
+        "own corners, locus or apriltag (pip install -e '.[peers]') (default opencv)",
+    )
+    p.add_argument(
+        "--family",
+        "--dictionary",
+        dest="dictionary",
+        default="4x4_50",
+        help="marker family, one the detector decodes: 4x4_50, apriltag_36h11, apriltag_16h5, "
+        "... (OpenCV's dictionary names; default 4x4_50)",
+    )
     p.add_argument("--seed", type=seed, default=0, help="random seed, 0..2**32-1 (default 0)")
     p.add_argument("--spp", type=int, default=16, help="samples per pixel of the clean render")
     p.add_argument(
@@ -197,24 +215,37 @@ def study_config(args: argparse.Namespace) -> StudyConfig:
         camera=profile_from_option(args.camera),
         psf_scales=args.psf_scale,
         exposure=args.exposure,
-        detector=detector_from_option(args.cell_px),
+        detector=detector_from_option(args.cell_px, args.detector, args.dictionary),
     )
 
 
 def default_out(config: StudyConfig, quick: bool) -> Path:
-    if config == StudyConfig() or config == StudyConfig(psf_scales=BAND_PSF_SCALES):
+    """``results/detectability/<name>``: ``default``, ``quick`` or ``custom-<hash>`` of the grid,
+    then the detector and the family where they are not the defaults (``quick-locus``)."""
+    default = StudyConfig()
+    plain = dataclasses.replace(
+        config,
+        dictionary=default.dictionary,
+        detector=dataclasses.replace(
+            config.detector, dictionary=default.dictionary, backend="opencv",
+            corner_refinement=default.detector.corner_refinement,
+        ),
+    )  # fmt: skip
+    if plain == default or plain == StudyConfig(psf_scales=BAND_PSF_SCALES):
         name = "default"
-    elif quick and config == study_config(_parser().parse_args(["detectability", "--quick"])):
+    elif quick and plain == study_config(_parser().parse_args(["detectability", "--quick"])):
         name = "quick"
     else:
         import hashlib
         import json
 
         digest = hashlib.sha256(
-            json.dumps(config.to_json(), default=str, sort_keys=True).encode()
+            json.dumps(plain.to_json(), default=str, sort_keys=True).encode()
         ).hexdigest()[:8]
         name = f"custom-{digest}"
-    return Path("results") / "detectability" / name
+    extra = [config.detector.backend] if config.detector.backend != "opencv" else []
+    extra += [config.dictionary] if config.dictionary != default.dictionary else []
+    return Path("results") / "detectability" / "-".join([name, *extra])
 
 
 def _cmd_detectability(args: argparse.Namespace) -> int:
@@ -242,6 +273,13 @@ def _cmd_detectability(args: argparse.Namespace) -> int:
         f"{manifest['images_per_s'] or 0:.0f} images/s, variant {manifest['variant']})"
     )
     print(f"max phi with detection >= 95%: {out / 'max_phi.csv'}, plot {out / 'max_phi.png'}")
+    failures = manifest["backend_failures"]
+    if failures:
+        print(
+            f"detector {config.detector.backend} crashed on {sum(failures.values())} images "
+            f"(not counted as detected or missed) in {len(failures)} cells: "
+            + ", ".join(f"{cell} ({n})" for cell, n in failures.items())
+        )
     if len(config.psf_scales) > 1:
         print(f"band over PSF scales {', '.join(f'{s:g}' for s in config.psf_scales)} included")
     return 0
@@ -335,6 +373,7 @@ def _parser() -> argparse.ArgumentParser:
     add_bench_render_parser(bench_sub)
     add_camera_parser(sub, _Parser)
     add_lens_parser(sub, _Parser)
+    add_images_parser(sub)
     return parser
 
 

@@ -11,10 +11,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from pipeline.backends import BACKENDS
 from renderers.frame_sampling import FrameSampling, marker_region
 from scenes.array import ArraySpec
 from scenes.branch_reach import branch_reach_error
 from scenes.lighting import lighting_names
+from scenes.marker import check_dictionary
 from scenes.motion import MotionSpec, MotionSpecError, get_protocol
 from scenes.profile import CameraProfile, load_profile
 from scenes.validation import MAX_SEED, FieldError
@@ -58,6 +60,33 @@ class DatasetConfigError(FieldError):
 def branches_name(branches_mm: tuple[float, ...]) -> str:
     """'none', '0', '0+50': how a branch configuration appears in ids and on the command line."""
     return "+".join(f"{b:g}" for b in branches_mm) if branches_mm else "none"
+
+
+def detected_families() -> tuple[str, ...]:
+    """The marker families some detector backend decodes (:data:`pipeline.backends.BACKENDS`)."""
+    return tuple(sorted({f for backend in BACKENDS.values() for f in backend.families}))
+
+
+def array_of_family(family: str, array: ArraySpec | None = None) -> ArraySpec:
+    """``--family``: the array (default :class:`ArraySpec`) with its markers in ``family``; the
+    array itself where that is its family already, so equal settings keep one settings hash.
+    DatasetConfigError on ``family`` for one no backend decodes or without the array's ids."""
+    array = ArraySpec() if array is None else array
+    try:
+        name = check_dictionary(family)
+    except ValueError as exc:
+        raise DatasetConfigError("family", str(exc)) from None
+    families = detected_families()
+    if name not in families:
+        raise DatasetConfigError(
+            "family", f"{name}: no detector decodes it; choose from {', '.join(families)}"
+        )
+    if name == check_dictionary(array.dictionary):
+        return array
+    try:
+        return dataclasses.replace(array, dictionary=name)
+    except ValueError as exc:  # an id of the array beyond the family's
+        raise DatasetConfigError("family", f"{name}: {exc}") from None
 
 
 @dataclass(frozen=True)

@@ -31,6 +31,7 @@ from bench.dataset.config import SAMPLE_FILES, DatasetConfig, SampleSpec
 from bench.dataset.labels import corners_of_frame, label_table
 from scenes.branch_reach import gap_of_branch
 from scenes.lighting import get_lighting
+from scenes.marker import check_dictionary
 from scenes.motion import MotionSpec
 from scenes.vegetation import (
     SAMPLING_PENETRATION_MM,
@@ -206,6 +207,7 @@ def run_sample(config: DatasetConfig, sample: SampleSpec, out_dir: Path) -> dict
         "region_px": dataclasses.asdict(frames.renderer.region),
         "rays_per_frame": frames.renderer.rays_per_frame,
         "array": config.array.to_json(),
+        "family": check_dictionary(config.array.dictionary),  # the markers' (array.dictionary)
         "timing_s": dataclasses.asdict(timing),
         "settings_sha256": config.settings_hash(),
         "files": {name: sha256(folder / name) for name in SAMPLE_FILES},

@@ -9,6 +9,10 @@ Per variant, measured in the same run on this machine:
 * **failure boundaries**: detection recall and pose error against angular position, marker tilt,
   lighting, motion blur and sensor noise, over several seeds (:mod:`bench.evaluate.sweeps`).
 
+Peer detectors (the ``locus`` and ``apriltag`` presets, any ``/detector=`` variant) run like
+every other pipeline; the report opens with who leads on each measure, peers beside the
+project's pipelines (:mod:`bench.evaluate.leaders`, also ``leaders.csv``).
+
 The report (``report.md`` with PNG charts beside it) opens without a server. Per-sample outputs
 (detections tables and plots: bulk data) go to ``<dataset>/scores/<variant>/``, not beside the
 report.
@@ -16,6 +20,7 @@ report.
 
 from __future__ import annotations
 
+import json
 import os
 import platform
 import shutil
@@ -39,6 +44,7 @@ from bench.common.manifest import (  # noqa: E402
     hash_files,
     write_manifest,
 )
+from bench.evaluate.leaders import is_peer, leader_lines, leaders  # noqa: E402
 from bench.evaluate.speed import (  # noqa: E402
     SPEED_SAMPLE,
     full_frames,
@@ -56,6 +62,10 @@ ACCURACY = (
 )
 
 
+#: The backend's own pose errors in the scores (NaN for OpenCV, which has none).
+OWN_POSE = ("own_rot_err_deg", "own_trans_err_mm")
+
+
 def summarize(name: str, table: pd.DataFrame) -> dict:
     """One variant's dataset accuracy from its ``samples.csv`` table."""
     return {
@@ -71,6 +81,9 @@ def summarize(name: str, table: pd.DataFrame) -> dict:
         "corner_err_px": float(table["corner_err_px"].median()),
         "rot_err_deg": float(table["rot_err_deg"].median()),
         "trans_err_mm": float(table["trans_err_mm"].median()),
+        # the backend's own pose (NaN for OpenCV) and its crashes, where the scores have them
+        **{c: float(table[c].median()) for c in OWN_POSE if c in table},
+        **{c: int(table[c].sum()) for c in ("failed_frames",) if c in table},
     }
 
 
@@ -86,14 +99,23 @@ def pareto_front(speed: np.ndarray, accuracy: np.ndarray, higher_better: bool) -
 
 
 def plot_pareto(summary: pd.DataFrame, path: Path) -> None:
-    """Accuracy against speed, one panel per accuracy measure, the Pareto front drawn."""
+    """Accuracy against speed, one panel per accuracy measure, the Pareto front drawn.
+
+    The front is computed over every pipeline, peers included; peers are hollow diamonds, the
+    project's pipelines filled circles (red on the front, grey behind it)."""
     fig, axes = plt.subplots(1, len(ACCURACY), figsize=(5 * len(ACCURACY), 4), dpi=110)
     speed = summary["fps"].to_numpy()
+    peer = summary["pipeline"].map(is_peer).to_numpy(bool)
     for ax, (column, label, higher) in zip(axes, ACCURACY, strict=True):
         acc = summary[column].to_numpy()
         front = pareto_front(speed, acc, higher)
-        ax.scatter(speed[~front], acc[~front], c="#9e9e9e", s=40, label="dominated")
-        ax.scatter(speed[front], acc[front], c="#d62728", s=50, label="Pareto front")
+        for mine, where, colour in (
+            (~front, "behind the front", "#9e9e9e"),
+            (front, "Pareto front", "#d62728"),
+        ):
+            ax.scatter(speed[mine & ~peer], acc[mine & ~peer], c=colour, s=45, label=where)
+            ax.scatter(speed[mine & peer], acc[mine & peer], marker="D", s=55, facecolors="none",
+                       edgecolors=colour, linewidths=1.6, label=f"peer, {where}")  # fmt: skip
         order = np.argsort(speed[front])
         ax.plot(speed[front][order], acc[front][order], "-", c="#d62728", lw=1)
         for x, y, name in zip(speed, acc, summary["pipeline"], strict=True):
@@ -102,8 +124,10 @@ def plot_pareto(summary: pd.DataFrame, path: Path) -> None:
         ax.set_xlabel("frames/s, full 2592x1944 frames, one core")
         ax.set_ylabel(label + ("" if higher else ", lower is better"))
         ax.grid(alpha=0.3)
-    axes[0].legend(fontsize=7)
-    fig.suptitle("accuracy against speed", fontsize=10)
+    handles, labels = axes[0].get_legend_handles_labels()
+    shown = [(h, t) for h, t in zip(handles, labels, strict=True) if len(h.get_offsets())]
+    axes[0].legend(*zip(*shown, strict=True), fontsize=7)
+    fig.suptitle("accuracy against speed (hollow diamonds: peer detectors)", fontsize=10)
     fig.tight_layout()
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format="png")
@@ -125,22 +149,29 @@ def run_compare(
     """Measure every variant (speed, dataset accuracy, sweeps) and write the report.
 
     Speed: the best of repeats over ``speed_frames`` full frames, run for ``speed_seconds``.
-    Before any work the report folder and every variant's score folder are claimed (ValueError
-    if another command's) and the dataset is verified, once (DatasetIntegrityError naming the
-    file); ``manifest.json`` is written last. Scoring and sweeps run their tasks on
-    ``executor`` (:class:`~bench.common.executor.TaskPool`), recorded in the manifest.
+    Before anything is written a peer that is not installed
+    (:class:`pipeline.backends.BackendUnavailableError`) or a pipeline whose backend cannot
+    detect the sweeps' or the dataset's family (ValueError) is refused; then the report
+    folder and every variant's score folder are claimed (ValueError if another command's) and
+    the dataset is verified, once (DatasetIntegrityError naming the file); ``manifest.json``
+    is written last. Scoring and sweeps run their tasks on ``executor``
+    (:class:`~bench.common.executor.TaskPool`), recorded in the manifest.
     """
     from bench.dataset.verify import verify_dataset
-    from bench.evaluate.score import score_dataset
+    from bench.evaluate.score import dataset_family, for_family, score_dataset
     from bench.evaluate.sweep_config import SweepConfig
     from bench.evaluate.sweep_report import boundaries, write_sweeps
-    from bench.evaluate.sweeps import run_sweeps
+    from bench.evaluate.sweeps import run_sweeps, sweep_pipelines
 
     dataset, out_dir = Path(dataset), Path(out_dir)
     sweep = sweep or SweepConfig()
     names = [p.name for p in pipelines]
     if len(set(names)) != len(names) or not names:
         raise ValueError(f"--pipelines: need distinct names, got {names}")
+    sweep_pipelines(pipelines, sweep)  # a missing peer or a family it cannot detect: refused now
+    family = dataset_family(dataset)
+    for pipeline in pipelines:
+        for_family(pipeline, family)  # the dataset's family too, before any claim
     clock = RunClock()
     claim(out_dir, "compare")
     for pipeline in pipelines:
@@ -165,10 +196,11 @@ def run_compare(
         pipelines, sweep, variant, workers=workers, executor=executor, scheduler=scheduler
     )
     edges = boundaries(sweeps)
+    leads = leaders(summary, edges)
 
     out_dir.mkdir(parents=True, exist_ok=True)
     written = write_sweeps(out_dir, sweeps, sweep, pipelines)
-    for name, frame in (("summary", summary), ("boundaries", edges)):
+    for name, frame in (("summary", summary), ("boundaries", edges), ("leaders", leads)):
         with atomic_path(out_dir / f"{name}.csv") as tmp:
             frame.to_csv(tmp, index=False)
         written.append(out_dir / f"{name}.csv")
@@ -184,7 +216,8 @@ def run_compare(
         "wall_s": time.perf_counter() - t_start,
         "speed_frames": speed_frames,
     }
-    write_bytes(out_dir / "report.md", render_report(summary, tables, edges, grids, meta).encode())
+    report = render_report(summary, tables, edges, leads, grids, meta)
+    write_bytes(out_dir / "report.md", report.encode())
     written += [out_dir / "pareto.png", out_dir / "report.md"]
     written += [out_dir / "grids" / n for names in grids.values() for n in names]
     config = {
@@ -245,10 +278,11 @@ def render_report(
     summary: pd.DataFrame,
     tables: dict[str, pd.DataFrame],
     edges: pd.DataFrame,
+    leads: pd.DataFrame,
     grids: dict[str, list[str]],
     meta: dict,
 ) -> str:
-    """The report's Markdown: the figures, the tables, and where each variant fails."""
+    """The report's Markdown: who leads, the figures, the tables, where each variant fails."""
     columns = [
         "pipeline",
         "fps",
@@ -258,6 +292,7 @@ def render_report(
         "corner_err_px",
         "rot_err_deg",
         "trans_err_mm",
+        *[c for c in (*OWN_POSE, "failed_frames") if c in summary],
         "false_positive_samples",
         "false_negative_samples",
         "false_detections",
@@ -269,6 +304,14 @@ def render_report(
         f"{meta['speed_frames']} full 2592x1944 frames with 13 markers, one OpenCV thread; "
         f"{meta['cpu_count']} cores, OpenCV {meta['opencv']}, Mitsuba variant {meta['variant']}; "
         f"the whole comparison took {meta['wall_s']:.0f} s.",
+        "",
+        "## Who leads",
+        "",
+        "Per measure, the leading pipeline, the best of the project's pipelines and the best "
+        "peer detector (`leaders.csv`); failure boundaries: how far recall stays >= 95 %.",
+        "",
+        *[f"- {line}" for line in leader_lines(leads)],
+        *[f"- {line}" for line in failed_frame_lines(tables)],
         "",
         "## Accuracy against speed",
         "",
@@ -296,3 +339,24 @@ def render_report(
             )
         lines += [f"![{name} {g}](grids/{g})" for g in grids.get(name, [])] + [""]
     return "\n".join(lines) + "\n"
+
+
+def failed_frame_lines(tables: dict[str, pd.DataFrame]) -> list[str]:
+    """A line per peer: the frames its backend crashed on, per sample (from the scores'
+    ``failed_frames`` and ``failed_frame_ids``; NaN for a refused sample is no failure)."""
+    lines = []
+    for name, table in tables.items():
+        if not is_peer(name) or "failed_frames" not in table:
+            continue
+        failed = table[table["failed_frames"] > 0]
+        if failed.empty:
+            lines.append(f"{name}: no failed frames")
+            continue
+        where = "; ".join(
+            f"{r.sample_id} frames {', '.join(map(str, json.loads(r.failed_frame_ids)))}"
+            if "failed_frame_ids" in table
+            else f"{r.sample_id} ({int(r.failed_frames)} frames)"
+            for r in failed.itertuples()
+        )
+        lines.append(f"{name}: {int(failed['failed_frames'].sum())} failed frames: {where}")
+    return lines

@@ -1,7 +1,8 @@
 """``whiskerbench detect``: run a pipeline on one video, synthetic or recorded, same code path.
 
-Writes ``detections.parquet`` (per frame and marker: corners, pose, deflection, contact),
-``branches.json`` (the estimates as gaps between whiskers, angles and mm along the array) and
+Writes ``detections.parquet`` (per frame and marker: corners, pose, the backend's own pose,
+deflection, contact), ``branches.json`` (the estimates as gaps between whiskers, angles and mm
+along the array; the frames the detector backend crashed on and why refinement fell back) and
 ``branches.png`` (SPEC 3's per-sample plot; true branches drawn when the video's ``sample.json``
 is beside it).
 """
@@ -115,6 +116,9 @@ def run_detect(
         "unseen_markers": est.unseen_markers,
         "foreign_ids": result.foreign_ids,
         "pose_failures": result.pose_failures,
+        "detector": config.detector.backend,
+        "failed_frames": result.failed_frames,  # the backend crashed: no detections there
+        "refine_failures": dict(result.refine_failures),
         "true_gaps": truth,
     }
     write_json(out_dir / "branches.json", record)

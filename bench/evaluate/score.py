@@ -3,7 +3,13 @@
 Marker level (detections joined with labels on frame and marker id): recall over visible
 markers, false detections (ids not on the array, or a marker reported where the labels say it is
 not visible), corner error (px, mean of the 4 corners), pose error (rotation deg, translation
-mm), deflection error (mm), contact precision and recall.
+mm) of the project's pose and, beside it, of the detector backend's own pose (``own_``; NaN for
+a backend without one), deflection error (mm), contact precision and recall.
+
+A dataset rendered with another marker family (its array's ``dictionary``) is scored with each
+pipeline's detector set to that family; a pipeline whose backend cannot detect it is refused in
+one line before any work. Frames on which the backend crashed (no detections there) are counted
+per sample (``failed_frames``, their indices in ``failed_frame_ids``).
 
 Sample level: each true branch is *found* when an estimated gap starts within one whisker of its
 true gap; an estimate within one gap of no true branch is a false positive. The outcome is
@@ -12,6 +18,7 @@ true gap; an estimate within one gap of no true branch is a false positive. The 
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from contextlib import nullcontext
 from dataclasses import dataclass
@@ -31,14 +38,18 @@ from bench.common.manifest import (  # noqa: E402
     build_manifest,
     claim,
     hash_files,
+    read_manifest,
     write_manifest,
 )
 from bench.dataset.verify import VerifiedDataset, verify_dataset  # noqa: E402
 from pipeline.presets import PipelineConfig  # noqa: E402
+from scenes.array import ArraySpec  # noqa: E402
+from scenes.marker import check_dictionary  # noqa: E402
 from scenes.tables import (  # noqa: E402
     DETECTIONS,
     JOIN_KEY,
     LABELS,
+    OWN_POSE_PREFIX,
     TRUTH_SUFFIX,
     check_table,
     corners_of,
@@ -74,21 +85,14 @@ def score_markers(detections: pd.DataFrame, labels: pd.DataFrame, foreign_ids: i
     corner_err = np.linalg.norm(
         corners_of(matched) - corners_of(matched, TRUTH_SUFFIX), axis=-1
     ).mean(axis=1)
-    cos = (
-        np.einsum("nij,nij->n", rotations_of(matched), rotations_of(matched, TRUTH_SUFFIX)) - 1
-    ) / 2
-    rot_err = np.degrees(np.arccos(np.clip(cos, -1, 1)))
-    trans_err = np.linalg.norm(
-        translations_of(matched) - translations_of(matched, TRUTH_SUFFIX), axis=1
-    )
     out = {
         "markers_visible": int(visible.sum()),
         "markers_found": len(matched),
         "recall": len(matched) / visible.sum() if visible.any() else float("nan"),
         "false_detections": int(foreign_ids + (~joined["visible"]).sum()),
         "corner_err_px": _median(corner_err),
-        "rot_err_deg": _median(rot_err),
-        "trans_err_mm": _median(trans_err),
+        **_pose_errors(matched, ""),
+        **_pose_errors(matched, OWN_POSE_PREFIX),  # NaN where the backend has no pose
     }
     if "deflection_mm" in detections:  # a tracking-only table has no deflection to score
         out["deflection_err_mm"] = _median(
@@ -96,6 +100,18 @@ def score_markers(detections: pd.DataFrame, labels: pd.DataFrame, foreign_ids: i
         )
         out.update(_precision_recall(matched["contact"], matched["contact" + TRUTH_SUFFIX]))
     return out
+
+
+def _pose_errors(matched: pd.DataFrame, prefix: str) -> dict:
+    """Median rotation (deg) and translation (mm) errors of the pose columns named by
+    ``prefix`` against the truth, as ``{prefix}rot_err_deg`` and ``{prefix}trans_err_mm``."""
+    truth_R = rotations_of(matched, TRUTH_SUFFIX)
+    cos = (np.einsum("nij,nij->n", rotations_of(matched, prefix=prefix), truth_R) - 1) / 2
+    moved = translations_of(matched, prefix=prefix) - translations_of(matched, TRUTH_SUFFIX)
+    return {
+        f"{prefix}rot_err_deg": _median(np.degrees(np.arccos(np.clip(cos, -1, 1)))),
+        f"{prefix}trans_err_mm": _median(np.linalg.norm(moved, axis=1)),
+    }
 
 
 def _median(values) -> float:
@@ -114,6 +130,35 @@ def _precision_recall(predicted: pd.Series, truth: pd.Series) -> dict:
 
 
 # -- a whole dataset ------------------------------------------------------------------------
+
+
+def dataset_family(dataset: Path) -> str | None:
+    """The marker family the dataset's array was rendered with (its manifest's config); None
+    without a readable dataset manifest (:func:`verify_dataset` then says what is wrong)."""
+    config = (read_manifest(dataset) or {}).get("config")
+    try:
+        return check_dictionary(config["array"]["dictionary"])
+    except (KeyError, TypeError):
+        return None
+
+
+def for_family(config: PipelineConfig, family: str | None) -> PipelineConfig:
+    """``config`` with its detector set to the marker ``family`` (None: unchanged); ValueError
+    in one line when its backend cannot detect that family."""
+    if family is None or family == config.detector.dictionary:
+        return config
+    try:
+        detector = dataclasses.replace(config.detector, dictionary=family)
+    except ValueError as exc:
+        raise ValueError(f"pipeline {config.name}: {exc}") from None
+    return dataclasses.replace(config, detector=detector)
+
+
+def _array(record: dict) -> ArraySpec | None:
+    """The array a sample was rendered with (its ``sample.json``); None in an old one."""
+    if "array" not in record:
+        return None
+    return ArraySpec(**{**record["array"], "marker_ids": tuple(record["array"]["marker_ids"])})
 
 
 def _none_twin(record: dict) -> str | None:
@@ -169,6 +214,7 @@ def _score_sample(task: _SampleTask, _context: None) -> tuple[dict, float | None
             task.config,
             out,
             task.threshold,
+            array=_array(record),
             video_sha256=task.video_sha256,
         )
     except NoBaselineError as exc:  # flagged and reported, never scored as an answer
@@ -190,6 +236,9 @@ def _score_sample(task: _SampleTask, _context: None) -> tuple[dict, float | None
         **branch_outcome(estimated, record["branch_gaps"]),
         **score_markers(detections, labels, result["foreign_ids"]),
         "frames_per_s": result["frames_per_s"],
+        "failed_frames": len(result["failed_frames"]),  # the backend crashed on them
+        "failed_frame_ids": json.dumps(result["failed_frames"]),
+        "refine_failures": sum(result["refine_failures"].values()),
     }
     return row, threshold
 
@@ -212,15 +261,18 @@ def score_dataset(
     without a twin, or for an ``online`` pipeline, it is inferred from the sample itself
     (column ``threshold_source``).
 
-    Before any work ``out_dir`` is claimed (ValueError if another command's) and every file of
-    every sample is checked against its recorded SHA-256 (DatasetIntegrityError naming the
-    file), unless ``verified`` says it was, in this command; ``manifest.json`` is written last.
+    The detector is set to the dataset's marker family (:func:`for_family`: a backend that
+    cannot detect it is refused). Before any work ``out_dir`` is claimed (ValueError if another
+    command's) and every file of every sample is checked against its recorded SHA-256
+    (DatasetIntegrityError naming the file), unless ``verified`` says it was, in this command;
+    ``manifest.json`` is written last.
     The samples are tasks on ``executor`` (:class:`~bench.common.executor.TaskPool`), or on
     ``pool`` when the caller keeps one for several pipelines (``compare``): the no-branch twins
     first, then the others with their twins' thresholds.
     """
 
     dataset, out_dir = Path(dataset), Path(out_dir)
+    config = for_family(config, dataset_family(dataset))  # refused here, before any work
     clock = RunClock()
     claim(out_dir, "score")
     verified = verified or verify_dataset(dataset)

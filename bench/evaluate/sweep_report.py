@@ -7,6 +7,7 @@ from pathlib import Path
 
 import matplotlib
 
+from bench.evaluate.leaders import is_peer  # noqa: E402
 from bench.evaluate.sweep_config import (  # noqa: E402
     AXES,
     NUMERIC_AXES,
@@ -110,9 +111,9 @@ _AXIS_LABELS = {
 def plot_sweeps(table: pd.DataFrame, path: Path) -> None:
     """One PNG: recall (top) and median rotation error (bottom, log) against each axis.
 
-    One colour per pipeline: the line is the mean over seeds, the dots each seed's value, so
-    the seed spread is visible; the dashed line is the 95 % recall threshold. Written
-    atomically.
+    One colour per pipeline: the line is the mean over seeds (dashed for peer detectors), the
+    dots each seed's value, so the seed spread is visible; the black dashed line is the 95 %
+    recall threshold. Written atomically.
     """
     pipelines = list(dict.fromkeys(table["pipeline"]))
     colours = {p: plt.get_cmap("tab10")(i % 10) for i, p in enumerate(pipelines)}
@@ -138,7 +139,8 @@ def plot_sweeps(table: pd.DataFrame, path: Path) -> None:
             # show a boundary where there is none); equal lines stay visible as they narrow.
             nudge = (k - (len(pipelines) - 1) / 2) * spread
             width = 1.0 + 2.2 * (len(pipelines) - 1 - k) / max(len(pipelines) - 1, 1)
-            style = "o" if axis == "lighting" else "-"  # categories are not joined by lines
+            # categories are not joined by lines; peers' lines are dashed
+            style = "o" if axis == "lighting" else "--" if is_peer(pipeline) else "-"
             for r, column in enumerate(("recall", "rot_err_deg")):
                 ax = grid[r, c]
                 mean = mine.groupby("x")[column].mean().sort_index()

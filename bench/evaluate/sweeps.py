@@ -63,16 +63,19 @@ import numpy as np
 import pandas as pd
 
 from bench.common.executor import TaskPool, effective_executor
-from bench.common.marker_score import MarkerTruth, find_marker, score_corners
+from bench.common.marker_score import MarkerTruth, score_corners
 from bench.evaluate.sweep_config import NUMERIC_AXES, SweepConfig, SweepPoint
 from bench.study.cells import CellRender, camera_images, render_cell
 from bench.study.config import Cell
+from pipeline.backends import BackendCrashError, require
+from pipeline.detect import detect_markers
 from pipeline.presets import PipelineConfig
 from renderers.camera_twin import optical_image
 from renderers.marker_renderer import MarkerRenderer
 from renderers.motion_blur import motion_blur
 from renderers.variant import init_worker
 from scenes.camera import FisheyeCamera
+from scenes.conventions import rotation_angle_deg
 from scenes.lighting import get_lighting
 
 #: The run seed of every sweep render's jitter: each seed's crop is rendered with seed 0's
@@ -106,6 +109,12 @@ def clean_render(
 # --- Scoring ----------------------------------------------------------------------------------
 
 
+#: The per-image errors :func:`score_images` gives as medians, in its columns' order.
+_MEDIANS = (
+    "corner_err_px", "rot_err_deg", "trans_err_mm", "own_rot_err_deg", "own_trans_err_mm"
+)  # fmt: skip
+
+
 def score_images(
     pipeline: PipelineConfig,
     images: np.ndarray,
@@ -117,35 +126,44 @@ def score_images(
 
     ``images``: (N, H, W) uint8 crops whose top-left pixel is ``origin_px`` in the full frame.
     Errors as in the study (:mod:`bench.common.marker_score`); medians are over the images
-    where the right id was found (pose errors: where the pose could also be solved).
+    where the right id was found (pose errors: where the pose could also be solved). The
+    backend's own pose, where it has one, is scored beside the project's (``own_*``; NaN for
+    OpenCV). An image on which the backend crashes (:class:`BackendCrashError`) is counted in
+    ``backend_failures`` and left out of ``recall``: it is neither found nor missed.
     """
-    hits = false_ids = pose_failures = 0
-    corner_err, rot_err, trans_err = [], [], []
+    hits = false_ids = pose_failures = failures = 0
+    errors: dict[str, list[float]] = {k: [] for k in _MEDIANS}
     for image in images:
-        n_detections, match = find_marker(image, pipeline.detector, origin_px, truth, lens)
-        false_ids += n_detections - len(match)
+        try:
+            detections = detect_markers(image, pipeline.detector, origin_px, lens, truth.size_mm)
+        except BackendCrashError:
+            failures += 1
+            continue
+        match = [d for d in detections if d.marker_id == truth.marker_id]
+        false_ids += len(detections) - len(match)
         if not match:
             continue
         hits += 1
-        errors, posed = score_corners(match[0], truth, lens, pipeline.pose_method)
-        corner_err.append(errors["corner_err_px"])
+        own = match[0].own_T_cam_marker
+        if own is not None and np.isfinite(own).all():
+            T_gt = truth.T_cam_marker
+            errors["own_rot_err_deg"].append(rotation_angle_deg(own[:3, :3], T_gt[:3, :3]))
+            errors["own_trans_err_mm"].append(float(np.linalg.norm(own[:3, 3] - T_gt[:3, 3])))
+        scored, posed = score_corners(match[0].corners_px, truth, lens, pipeline.pose_method)
+        errors["corner_err_px"].append(scored["corner_err_px"])
         if not posed:
             pose_failures += 1
             continue
-        rot_err.append(errors["rot_err_deg"])
-        trans_err.append(errors["trans_err_mm"])
-
-    def median(values: list[float]) -> float:
-        return float(np.median(values)) if values else float("nan")
-
+        errors["rot_err_deg"].append(scored["rot_err_deg"])
+        errors["trans_err_mm"].append(scored["trans_err_mm"])
+    seen = len(images) - failures
     return {
         "images": len(images),
-        "recall": hits / len(images),
+        "recall": hits / seen if seen else float("nan"),
         "false_ids": false_ids,
-        "corner_err_px": median(corner_err),
-        "rot_err_deg": median(rot_err),
-        "trans_err_mm": median(trans_err),
+        **{k: float(np.median(v)) if v else float("nan") for k, v in errors.items()},
         "pose_failures": pose_failures,
+        "backend_failures": failures,
     }
 
 
@@ -204,6 +222,30 @@ def _sweep_task(task: _SweepTask, renderer: MarkerRenderer) -> list[dict]:
     return rows
 
 
+def sweep_pipelines(pipelines: list[PipelineConfig], config: SweepConfig) -> list[PipelineConfig]:
+    """The pipelines as the sweep runs them, the sweep's family replacing each one's.
+
+    Refused before any rendering: an empty or ambiguous list, or a pipeline whose backend
+    cannot detect the family (ValueError, one line), a peer not installed
+    (:class:`pipeline.backends.BackendUnavailableError`, saying how to install it).
+    """
+    pipelines = list(pipelines)
+    if not pipelines:
+        raise ValueError("pipelines: need at least one pipeline")
+    names = [p.name for p in pipelines]
+    if len(set(names)) != len(names):
+        raise ValueError(f"pipelines: names must be distinct, got {names}")
+    out = []
+    for p in pipelines:
+        try:
+            detector = dataclasses.replace(p.detector, dictionary=config.dictionary)
+        except ValueError as exc:
+            raise ValueError(f"pipeline {p.name!r} in the sweeps: {exc}") from None
+        require(detector.backend)
+        out.append(dataclasses.replace(p, detector=detector))
+    return out
+
+
 def run_sweeps(
     pipelines: list[PipelineConfig],
     config: SweepConfig,
@@ -217,29 +259,22 @@ def run_sweeps(
 
     Columns: ``axis``, ``level`` (str: ``f"{value:g}"`` or the lighting's name), ``level_value``
     (float; NaN on the lighting axis), ``seed`` (0 .. seeds-1), ``pipeline`` (its name),
-    ``images``, ``recall`` (images where the right id was found / images), ``false_ids``
-    (detections of any other id, summed over the images), ``corner_err_px``, ``rot_err_deg``,
-    ``trans_err_mm`` (medians, :func:`score_images`) and ``pose_failures`` (right id found but
-    no pose: :func:`pipeline.pose.estimate_pose` raised, e.g. ``pose_method="fisheye"`` at or
-    past 90 deg, or returned a non-finite pose). The config goes to a file beside the table
-    (:func:`bench.evaluate.sweep_report.write_sweeps`).
+    ``images``, ``recall`` (images where the right id was found / images the backend did not
+    crash on), ``false_ids`` (detections of any other id, summed over the images),
+    ``corner_err_px``, ``rot_err_deg``, ``trans_err_mm``, ``own_rot_err_deg``,
+    ``own_trans_err_mm`` (medians, :func:`score_images`; ``own_*``: the backend's own pose, NaN
+    for OpenCV), ``pose_failures`` (right id found but no pose:
+    :func:`pipeline.pose.estimate_pose` raised, e.g. ``pose_method="fisheye"`` at or past
+    90 deg, or returned a non-finite pose) and ``backend_failures`` (images the backend crashed
+    on). The pipelines are checked first (:func:`sweep_pipelines`). The config goes to a file
+    beside the table (:func:`bench.evaluate.sweep_report.write_sweeps`).
 
     Each distinct crop is rendered once per seed (points sharing a render: the blur and noise
     levels, and the base point met on several axes) and every pipeline sees the same images.
     Each (seed, crop) is a task on ``executor`` (:class:`~bench.common.executor.TaskPool`).
     """
-    pipelines = list(pipelines)
-    if not pipelines:
-        raise ValueError("pipelines: need at least one pipeline")
+    pipelines = sweep_pipelines(pipelines, config)
     names = [p.name for p in pipelines]
-    if len(set(names)) != len(names):
-        raise ValueError(f"pipelines: names must be distinct, got {names}")
-    pipelines = [
-        dataclasses.replace(
-            p, detector=dataclasses.replace(p.detector, dictionary=config.dictionary)
-        )
-        for p in pipelines
-    ]
     chosen = init_worker(variant)
     inline = effective_executor(executor, workers, scheduler) == "inline"
     points = config.points()

@@ -8,12 +8,15 @@ phase are those of the full frame. For each PSF scale of the sensitivity band th
 optics are applied once, and camera images are then drawn from its sensor and stream stages
 adaptively: in batches until the Wilson interval of the detection rate excludes 0.95 or the cap
 ``images`` is reached (a cell that never detects is settled after 10 images, a perfect one after
-80). Each image is detected once (OpenCV, ``subpix`` corners as the original system used) and
-its corners refined again with the project's ``lines``; both are posed and scored (at the
-nominal PSF scale, on a cell's first :data:`POSE_IMAGES` images; the band's other scales and the
-images beyond measure detection only; :mod:`bench.common.marker_score`, shared with the
-sweeps). A cell's rows are written atomically to ``cells/<key>_x<scale>.parquet``, so an
-interrupted study resumes where it stopped. Every cell a process runs is handed the same
+80). Each image is detected once (by default OpenCV with ``subpix`` corners, as the original
+system used; ``--detector`` a peer with its ``own`` corners) and its corners refined again with
+the project's ``lines``; both are posed and scored (at the nominal PSF scale, on a cell's first
+:data:`POSE_IMAGES` images; the band's other scales and the images beyond measure detection
+only; :mod:`bench.common.marker_score`, shared with the sweeps). An image on which a peer's
+worker crashes (:class:`~pipeline.backends.BackendCrashError`) is a row with ``backend_failed``
+set: neither detected nor missed, it counts towards the cap but not towards the detection rate.
+A cell's rows are written atomically to ``cells/<key>_x<scale>.parquet``, so an interrupted
+study resumes where it stopped. Every cell a process runs is handed the same
 :class:`~renderers.marker_renderer.MarkerRenderer` (:func:`init_study_worker`).
 """
 
@@ -32,7 +35,8 @@ import pandas as pd
 from bench.common.atomic import atomic_path, write_bytes
 from bench.common.marker_score import MarkerTruth, find_marker, score_corners
 from bench.study.config import IMAGE_STEPS, POSE_IMAGES, Cell, StudyConfig
-from bench.study.report import METRICS, REFINEMENTS, excludes_threshold, wilson_interval
+from bench.study.report import METRICS, excludes_threshold, refinements_of, wilson_interval
+from pipeline.backends import BackendCrashError
 from pipeline.refine import refine_corners_by_edges
 from renderers.camera_twin import optical_image, sensor_images
 from renderers.marker_renderer import MarkerRenderer
@@ -199,8 +203,8 @@ def run_cell(
         draws = _Draws(config, renderer, render, cell, scale)
         pose_scale = scale == config.nominal_psf_scale
         rows: list[dict] = []
-        k = 0
-        while len(rows) < config.images and not (rows and settled(k, len(rows))):
+        k = scored = 0  # right ids, and images the detector did not crash on
+        while len(rows) < config.images and not (scored and settled(k, scored)):
             images = draws.draw(_next_count(len(rows), config.images) - len(rows))
             t0 = time.perf_counter()
             for image in images:
@@ -212,6 +216,7 @@ def run_cell(
                     write_bytes(out_dir / path, cv2.imencode(".png", image)[1].tobytes())
                     row["image_path"] = str(path)
                 k += row["id_ok"]
+                scored += not row["backend_failed"]
                 rows.append(row)
             timings["detect_s"] += time.perf_counter() - t0
         timings["optics_s"] += draws.optics_s
@@ -223,7 +228,7 @@ def run_cell(
         with atomic_path(out_dir / "cells" / f"{cell.output_name(scale)}.parquet") as tmp:
             table.to_parquet(tmp, index=False)
         used[cell.output_name(scale)] = len(rows)
-        rates[scale] = k / len(rows)
+        rates[scale] = k / scored if scored else float("nan")
     timings["images"] = used
     timings["rates"] = rates
     return timings
@@ -238,25 +243,32 @@ def _score_image(
 ) -> dict:
     """Detect once, refine the corners both ways, pose and compare: one row of images.parquet.
 
-    Without ``pose`` (the band's other PSF scales and images past POSE_IMAGES, which measure
-    detection only) the corner and pose columns stay NaN: refining and posing cost five times
-    the detection."""
+    The detector's corners are ``subpix`` (OpenCV) or ``own`` (a peer), ``lines`` refined from
+    them (:func:`~bench.study.report.refinements_of`). Without ``pose`` (the band's other PSF
+    scales and images past POSE_IMAGES, which measure detection only) the corner and pose
+    columns stay NaN: refining and posing cost five times the detection."""
     lens = config.camera.lens
     gt = truth.corners_px
     row: dict = {f"gt_{a}{k}_px": gt[k, i] for k in range(4) for i, a in enumerate("xy")}
-    n_detections, match = find_marker(image, config.detector, origin, truth, lens)
+    lines, own = refinements_of(config.detector.backend)
+    try:
+        n_detections, match = find_marker(image, config.detector, origin, truth, lens)
+        failed = False
+    except BackendCrashError:  # neither detected nor missed: the summary counts it apart
+        n_detections, match, failed = 0, [], True
     row.update(detected=bool(n_detections), id_ok=bool(match), n_detections=n_detections)
+    row["backend_failed"] = failed
     nan = float("nan")
-    for r in REFINEMENTS:
+    for r in (lines, own):
         row.update({f"det_{a}{k}_px_{r}": nan for k in range(4) for a in "xy"})
         row.update({f"{m}_{r}": nan for m in METRICS})
     if not (match and pose):
         return row
     modules = int(get_dictionary(config.dictionary).markerSize) + 2
-    corners = {"subpix": match[0]}
-    corners["lines"] = refine_corners_by_edges(
+    corners = {own: match[0]}
+    corners[lines] = refine_corners_by_edges(
         image,
-        corners["subpix"],
+        corners[own],
         lens,
         modules,
         origin,

@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from pipeline.backends import BackendUnavailableError, check_family, get_backend, require
 from pipeline.detect import DetectorConfig
 from scenes.lighting import get_lighting
 from scenes.marker import MarkerSpec, check_dictionary
@@ -122,10 +123,19 @@ class StudyConfig:
             fail("dictionary", str(exc))
         if self.spp < 1:
             fail("spp", f"{self.spp}: must be >= 1")
+        try:
+            check_family(self.detector.backend, self.dictionary)
+        except ValueError as exc:
+            fail("dictionary", str(exc))
         if self.detector.dictionary != self.dictionary:
             object.__setattr__(
                 self, "detector", dataclasses.replace(self.detector, dictionary=self.dictionary)
             )
+
+    @property
+    def detector_label(self) -> str:
+        """What found the markers, for titles and messages: ``"locus (apriltag_36h11)"``."""
+        return f"{self.detector.backend} ({self.dictionary})"
 
     def cells(self, phis_deg: tuple[float, ...] | None = None) -> list[Cell]:
         return [
@@ -176,12 +186,35 @@ class Cell:
         return np.random.SeedSequence(seed, spawn_key=key)
 
 
-def detector_from_option(cell_px: int) -> DetectorConfig:
-    """``--cell-px``: the study's detector (OpenCV defaults, ``subpix``) with that bit sampling."""
+def detector_from_option(
+    cell_px: int, backend: str = "opencv", family: str = "4x4_50"
+) -> DetectorConfig:
+    """``--detector``, ``--family`` and ``--cell-px``: the study's detector. OpenCV's defaults
+    with its ``subpix`` corners (what the original system used) and that bit sampling; a peer
+    with its own corners (``"none"``). Refused (StudyConfigError naming the option) in this
+    order: an unknown backend, a family it cannot decode, ``--cell-px`` for a peer, a peer that
+    is not installed (the message says how to get it)."""
     try:
-        return DetectorConfig("4x4_50", "subpix", cell_px=cell_px)
+        get_backend(backend)
     except ValueError as exc:
         raise StudyConfigError("detector", str(exc)) from None
+    try:
+        family = check_dictionary(family)
+        check_family(backend, family)
+    except ValueError as exc:
+        raise StudyConfigError("dictionary", str(exc)) from None
+    if backend != "opencv" and cell_px != DetectorConfig.cell_px:
+        raise StudyConfigError("cell_px", f"{cell_px}: applies to --detector opencv only")
+    refinement = "subpix" if backend == "opencv" else "none"
+    try:
+        config = DetectorConfig(family, refinement, cell_px=cell_px, backend=backend)
+    except ValueError as exc:
+        raise StudyConfigError("cell_px", str(exc)) from None
+    try:
+        require(backend)
+    except BackendUnavailableError as exc:
+        raise StudyConfigError("detector", str(exc)) from None
+    return config
 
 
 def profile_from_option(text: str) -> CameraProfile:

@@ -19,7 +19,9 @@ import pandas as pd  # noqa: E402
 from bench.study.report import nominal_scale_of  # noqa: E402
 
 DPI = 120
-REFINEMENT_STYLES = {"lines": "-", "subpix": "--"}
+#: Line style per corner refinement: ``subpix`` (OpenCV's) and ``own`` (a peer's) are the
+#: detector's corners, ``lines`` the project's refined from them.
+REFINEMENT_STYLES = {"lines": "-", "subpix": "--", "own": "--"}
 
 
 def size_colors(sizes: Sequence[float]) -> dict[float, tuple[float, float, float, float]]:
@@ -51,6 +53,11 @@ def scale_note(nominal: float, scales: Sequence[float]) -> str:
         return f"PSF scale {fmt_num(nominal)} (no band)"
     span = f"{fmt_num(scales[0])}\u2013{fmt_num(scales[-1])}"
     return f"nominal PSF scale {fmt_num(nominal)} of {span}"
+
+
+def detector_note(detector: str | None) -> str:
+    """``", detector locus (4x4_50)"`` for a figure's title; empty where none is named."""
+    return f", detector {detector}" if detector else ""
 
 
 def text_color(rgba: tuple[float, float, float, float]) -> str:

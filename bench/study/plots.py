@@ -23,6 +23,7 @@ from matplotlib.ticker import FormatStrFormatter, FuncFormatter  # noqa: E402
 from bench.study.plot_style import (  # noqa: E402
     REFINEMENT_STYLES,
     at_nominal,
+    detector_note,
     fmt_num,
     minor_log_label,
     rate_label,
@@ -63,6 +64,7 @@ def plot_max_phi(
     path: pathlib.Path,
     threshold: float = THRESHOLD,
     nominal_scale: float = 1.0,
+    detector: str | None = None,
 ) -> None:
     """Plot the figure of merit with its PSF band: max detectable tilt phi vs field angle alpha.
 
@@ -71,7 +73,8 @@ def plot_max_phi(
     phi over the scales (:func:`band`); the sizes stand side by side around each alpha, as
     overlapping filled bands of four sizes could not be told apart. One panel per lighting.
     "No phi reaches the threshold" is drawn at phi = -5 deg: an 'x' for the nominal scale, and
-    a bar reaching down to it fails at some scale. ``threshold`` is only used for labels.
+    a bar reaching down to it fails at some scale. ``threshold`` is only used for labels;
+    ``detector`` (what found the markers) goes into the title.
     """
     table = band(max_phi_table, nominal_scale)
     scales = np.sort(pd.unique(max_phi_table["psf_scale"].astype(float))).tolist()
@@ -166,7 +169,8 @@ def plot_max_phi(
         frameon=False,
     )
     fig.suptitle(
-        "Largest detectable marker tilt vs position in the field of view\n"
+        "Largest detectable marker tilt vs position in the field of view"
+        f"{detector_note(detector)}\n"
         + (
             f"line: PSF scale {fmt_num(nominal)}; band: PSF scale "
             f"{fmt_num(scales[0])}\u2013{fmt_num(scales[-1])}"
@@ -183,6 +187,7 @@ def plot_heatmap(
     path: pathlib.Path,
     threshold: float = THRESHOLD,
     nominal_scale: float = 1.0,
+    detector: str | None = None,
 ) -> None:
     """Detection rate heatmaps at the nominal PSF scale: alpha (columns) x phi (rows).
 
@@ -192,6 +197,7 @@ def plot_heatmap(
     Colour runs from red (rate 0) to green (rate 1); each cell shows its rate, cells below
     ``threshold`` have bold text and a black outline, and a '?' marks a cell whose Wilson
     interval still holds the threshold (undecided at the image cap). Untested cells are grey.
+    ``detector`` (what found the markers) goes into the title.
     """
     needed = [*CELL_KEYS, "detection_rate", "decided"]
     require_columns(summary, needed, "summary table", nonempty=True)
@@ -273,7 +279,7 @@ def plot_heatmap(
     cbar.set_label("detection rate (right id)")
     cbar.ax.axhline(threshold, color="black", lw=1.0)
     fig.suptitle(
-        f"Detection rate per cell, {scale_note(nominal, scales)}\n"
+        f"Detection rate per cell, {scale_note(nominal, scales)}{detector_note(detector)}\n"
         f"bold, outlined: below {threshold * 100:g}%; ?: Wilson interval still holds "
         f"{threshold * 100:g}%; -: not tested",
         fontsize=10,
@@ -286,21 +292,25 @@ def plot_pose_error(
     path: pathlib.Path,
     phi_deg: float | None = None,
     nominal_scale: float = 1.0,
+    detector: str | None = None,
+    refinements: tuple[str, ...] = REFINEMENTS,
 ) -> None:
-    """Pose error vs alpha at the nominal PSF scale: median and p95, lines vs subpix corners.
+    """Pose error vs alpha at the nominal PSF scale: median and p95, lines vs the detector's
+    corners (``subpix`` for OpenCV, ``own`` for a peer: ``refinements``).
 
     Per lighting a 2 x 2 block: rows rotation (deg) and translation (mm), columns the per-cell
     median and :data:`PERCENTILE` th percentile over detected images. One colour per marker
-    size; solid for the ``lines`` refinement, dashed for ``subpix``. Each point collapses phi:
+    size; solid for the ``lines`` refinement, dashed for the detector's. Each point collapses phi:
     with ``phi_deg=None`` it is the median over the tested phis of the per-cell statistic
     (cells without a detection are skipped); with a value only that phi is used. A row's y
-    axis is logarithmic when its positive values span more than a factor 30.
+    axis is logarithmic when its positive values span more than a factor 30. ``detector``
+    (what found the markers) goes into the title.
     """
     p_stat = f"p{PERCENTILE}"
     columns = [
         f"{m}_{r}_{s}"
         for m in ("rot_err_deg", "trans_err_mm")
-        for r in REFINEMENTS
+        for r in refinements
         for s in ("median", p_stat)
     ]
     require_columns(summary, [*CELL_KEYS, *columns], "summary table", nonempty=True)
@@ -333,7 +343,7 @@ def plot_pose_error(
         sub = collapsed[collapsed["lighting"] == lighting]
         for qi, (metric, label) in enumerate(quantities):
             row = axes[2 * li + qi]
-            values = sub[[f"{metric}_{r}_{s}" for r in REFINEMENTS for s, _ in stats]]
+            values = sub[[f"{metric}_{r}_{s}" for r in refinements for s, _ in stats]]
             values = values.to_numpy(dtype=float).ravel()
             positive = values[np.isfinite(values) & (values > 0)]
             log = (
@@ -343,7 +353,7 @@ def plot_pose_error(
             )
             for ax, (stat, stat_label) in zip(row, stats, strict=True):
                 for size, grp in sub.groupby("size_mm", sort=True):
-                    for refinement in REFINEMENTS:
+                    for refinement in refinements:
                         ax.plot(
                             grp["alpha_deg"],
                             grp[f"{metric}_{refinement}_{stat}"],
@@ -372,7 +382,7 @@ def plot_pose_error(
     ]
     handles += [
         Line2D([], [], color="0.2", ls=REFINEMENT_STYLES[r], label=f"corners: {r}")
-        for r in REFINEMENTS
+        for r in refinements
     ]
     fig.legend(
         handles=handles,
@@ -387,7 +397,8 @@ def plot_pose_error(
         else "median over the tested phis of the per-cell statistics"
     )
     fig.suptitle(
-        f"Pose error of detected markers vs field angle ({how}), {scale_note(nominal, scales)}",
+        f"Pose error of detected markers vs field angle ({how}), {scale_note(nominal, scales)}"
+        f"{detector_note(detector)}",
         fontsize=11,
     )
     save(fig, path)

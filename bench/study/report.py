@@ -24,6 +24,7 @@ __all__ = [
     "IMAGE_METRIC_COLUMNS",
     "MAX_PHI_COLUMNS",
     "METRICS",
+    "PEER_REFINEMENTS",
     "PERCENTILE",
     "REFINEMENTS",
     "STATISTICS",
@@ -31,9 +32,12 @@ __all__ = [
     "THRESHOLD",
     "band",
     "excludes_threshold",
+    "image_metric_columns",
     "passes",
     "max_phi",
+    "refinements_of",
     "summarize",
+    "summary_columns",
     "summary_to_csv_bytes",
     "wilson_interval",
 ]
@@ -44,9 +48,13 @@ Z_95 = 1.959963984540054
 #: Detection rate a cell must reach: the original study's criterion (SPEC section 4).
 THRESHOLD = 0.95
 
-#: Corner refinements scored per image: OpenCV's ``subpix`` (what the original system used)
-#: and this project's ``lines``.
+#: Corner refinements scored per image with the ``opencv`` detector: OpenCV's ``subpix`` (what
+#: the original system used) and this project's ``lines`` refined from them.
 REFINEMENTS: tuple[str, ...] = ("lines", "subpix")
+
+#: The same with a peer detector: its ``own`` corners and ``lines`` refined from them; no column
+#: claims ``subpix`` for corners that are not OpenCV's cornerSubPix.
+PEER_REFINEMENTS: tuple[str, ...] = ("lines", "own")
 
 #: Upper percentile reported beside median and max (NumPy's default linear interpolation
 #: between order statistics, i.e. Hyndman & Fan type 7).
@@ -59,8 +67,19 @@ METRICS: tuple[str, ...] = ERRORS
 #: Per-cell statistics of every metric column, as suffixes ``_<statistic>``.
 STATISTICS: tuple[str, ...] = ("median", f"p{PERCENTILE}", "max")
 
-#: Per-image metric columns, in order.
-IMAGE_METRIC_COLUMNS: list[str] = [f"{m}_{r}" for m in METRICS for r in REFINEMENTS]
+
+def refinements_of(backend: str) -> tuple[str, ...]:
+    """The refinements a study with this detector backend scores (:data:`REFINEMENTS` or
+    :data:`PEER_REFINEMENTS`); the last is the detector's own corners."""
+    return REFINEMENTS if backend == "opencv" else PEER_REFINEMENTS
+
+
+def image_metric_columns(refinements: tuple[str, ...] = REFINEMENTS) -> list[str]:
+    """Per-image metric columns, in order."""
+    return [f"{m}_{r}" for m in METRICS for r in refinements]
+
+
+IMAGE_METRIC_COLUMNS: list[str] = image_metric_columns()  #: of the ``opencv`` detector
 
 #: Columns that identify one cell of the study grid.
 CELL_KEYS: list[str] = ["lighting", "psf_scale", "size_mm", "alpha_deg", "phi_deg"]
@@ -71,18 +90,24 @@ GROUP_KEYS: list[str] = ["lighting", "psf_scale", "size_mm", "alpha_deg"]
 #: Columns that identify one row of the band (a max-phi group without the PSF scale).
 BAND_KEYS: list[str] = ["lighting", "size_mm", "alpha_deg"]
 
-#: Columns of :func:`summarize`'s output, in order.
-SUMMARY_COLUMNS: list[str] = [
-    *CELL_KEYS,
-    "n_images",
-    "n_detected",
-    "n_id_ok",
-    "detection_rate",
-    "rate_lo",
-    "rate_hi",
-    "decided",
-    *[f"{c}_{s}" for c in IMAGE_METRIC_COLUMNS for s in STATISTICS],
-]
+
+def summary_columns(refinements: tuple[str, ...] = REFINEMENTS) -> list[str]:
+    """Columns of :func:`summarize`'s output, in order."""
+    return [
+        *CELL_KEYS,
+        "n_images",
+        "n_detected",
+        "n_id_ok",
+        "backend_failures",
+        "detection_rate",
+        "rate_lo",
+        "rate_hi",
+        "decided",
+        *[f"{c}_{s}" for c in image_metric_columns(refinements) for s in STATISTICS],
+    ]
+
+
+SUMMARY_COLUMNS: list[str] = summary_columns()  #: of the ``opencv`` detector
 
 #: Columns of :func:`max_phi`'s output, in order.
 MAX_PHI_COLUMNS: list[str] = [
@@ -111,8 +136,6 @@ BAND_COLUMNS: list[str] = [
     "psf_scale_min",
     "psf_scale_max",
 ]
-
-_REQUIRED_IMAGE_COLUMNS: list[str] = [*CELL_KEYS, "detected", "id_ok", *IMAGE_METRIC_COLUMNS]
 
 # Rates are ratios of small integers; allow for the last-bit rounding of e.g. 57/60 vs 0.95.
 RATE_TOL = 1e-12
@@ -194,42 +217,53 @@ def excludes_threshold(
     return (lo > threshold) | (hi < threshold)
 
 
-def summarize(images: pd.DataFrame, threshold: float = THRESHOLD) -> pd.DataFrame:
+def summarize(
+    images: pd.DataFrame,
+    threshold: float = THRESHOLD,
+    refinements: tuple[str, ...] = REFINEMENTS,
+) -> pd.DataFrame:
     """Collapse the per-image table into one row per cell (:data:`CELL_KEYS`).
 
     Counts: ``n_images`` (may differ per cell: sampling is adaptive), ``n_detected`` (any
-    marker found), ``n_id_ok`` (right id found: this is what counts as a detection).
-    ``detection_rate = n_id_ok / n_images`` with its Wilson 95 % interval
-    ``rate_lo``/``rate_hi``, and ``decided`` (:func:`excludes_threshold`). For every metric
-    column ``<metric>_<refinement>`` the median, the :data:`PERCENTILE` th percentile (linear
-    interpolation) and the max, as ``<column>_<statistic>``, over the images with ``id_ok``
-    (errors of a wrong id are meaningless) whose value is finite; NaN where there is none.
-    Extra input columns are ignored and the input is not modified. Rows are sorted by
+    marker found), ``n_id_ok`` (right id found: what counts as a detection), ``backend_failures``
+    (images the detector's worker crashed on, column ``backend_failed`` where present: neither
+    detected nor missed, they count in nothing else). ``detection_rate = n_id_ok / n_images``
+    (NaN where every image failed) with its Wilson 95 % interval ``rate_lo``/``rate_hi``, and
+    ``decided`` (:func:`excludes_threshold`). For every metric column ``<metric>_<refinement>`` (of
+    ``refinements``, :func:`refinements_of`) the median, the :data:`PERCENTILE` th percentile
+    (linear interpolation) and the max, as ``<column>_<statistic>``, over the images with
+    ``id_ok`` (errors of a wrong id are meaningless) whose value is finite; NaN where there is
+    none. Extra input columns are ignored and the input is not modified. Rows are sorted by
     :data:`CELL_KEYS`, so the result does not depend on the input row order.
     """
     _check_threshold(threshold)
-    require_columns(images, _REQUIRED_IMAGE_COLUMNS, "per-image table")
+    metrics = image_metric_columns(refinements)
+    require_columns(images, [*CELL_KEYS, "detected", "id_ok", *metrics], "per-image table")
     scales = images["psf_scale"].to_numpy(dtype=float)
     bad = scales[~(np.isfinite(scales) & (scales >= 0))]
     if bad.size:
         raise ValueError(f"psf_scale must be a finite factor >= 0 (0: no blur), got {bad[0]}")
 
-    id_ok = images["id_ok"].astype(bool)
+    failed = images.get("backend_failed", pd.Series(False, index=images.index)).astype(bool)
+    id_ok = images["id_ok"].astype(bool) & ~failed
     work = pd.DataFrame(
         {
             **{key: images[key] for key in CELL_KEYS},
-            "detected": images["detected"].astype(bool).astype(np.int64),
+            "scored": (~failed).astype(np.int64),
+            "failed": failed.astype(np.int64),
+            "detected": (images["detected"].astype(bool) & ~failed).astype(np.int64),
             "id_ok": id_ok.astype(np.int64),
-            **{c: images[c].astype(float).where(id_ok) for c in IMAGE_METRIC_COLUMNS},
+            **{c: images[c].astype(float).where(id_ok) for c in metrics},
         }
     )
     grouped = work.groupby(CELL_KEYS, sort=True, dropna=False)
     counts = grouped.agg(
-        n_images=("id_ok", "size"),
+        n_images=("scored", "sum"),
         n_detected=("detected", "sum"),
         n_id_ok=("id_ok", "sum"),
+        backend_failures=("failed", "sum"),
     ).astype(np.int64)
-    errors = grouped[IMAGE_METRIC_COLUMNS]
+    errors = grouped[metrics]
     stats = {  # pandas skips NaN in all three, as np.nanmedian / np.nanpercentile / np.nanmax
         "median": errors.median(),
         f"p{PERCENTILE}": errors.quantile(PERCENTILE / 100.0, interpolation="linear"),
@@ -240,11 +274,12 @@ def summarize(images: pd.DataFrame, threshold: float = THRESHOLD) -> pd.DataFram
     ).reset_index()
     n = out["n_images"].to_numpy(dtype=float)
     k = out["n_id_ok"].to_numpy(dtype=float)
-    out["detection_rate"] = k / n  # groups are never empty, n >= 1
+    with np.errstate(invalid="ignore"):
+        out["detection_rate"] = k / n  # NaN where every image of the cell failed
     out["rate_lo"], out["rate_hi"] = wilson_interval(k, n)
     out["decided"] = excludes_threshold(out["rate_lo"], out["rate_hi"], threshold)
     out = out.sort_values(CELL_KEYS, kind="mergesort").reset_index(drop=True)
-    return out[SUMMARY_COLUMNS]
+    return out[summary_columns(refinements)]
 
 
 def summary_to_csv_bytes(summary: pd.DataFrame) -> bytes:

@@ -77,8 +77,9 @@ def _rates(
     rows = []
     for cell, scale in done:
         if (cell, scale) not in known:  # resumed: computed by an earlier run
-            table = pd.read_parquet(_cell_path(out_dir, cell, scale), columns=["id_ok"])
-            known[(cell, scale)] = float(table["id_ok"].mean())
+            path = _cell_path(out_dir, cell, scale)
+            table = pd.read_parquet(path, columns=["id_ok", "backend_failed"])
+            known[(cell, scale)] = float(table["id_ok"][~table["backend_failed"]].mean())
         rows.append(
             {
                 "lighting": cell.lighting,
@@ -90,6 +91,17 @@ def _rates(
             }
         )
     return pd.DataFrame(rows)
+
+
+def _backend_failures(summary: pd.DataFrame) -> dict[str, int]:
+    """The cells (``<key>_x<scale>``) on whose images the detector's worker crashed: how many."""
+    failed = summary[summary["backend_failures"] > 0]
+    return {
+        Cell(r.lighting, r.size_mm, r.alpha_deg, r.phi_deg).output_name(r.psf_scale): int(
+            r.backend_failures
+        )
+        for r in failed.itertuples()
+    }
 
 
 def run_study(
@@ -157,9 +169,12 @@ def run_study(
     t_tab = time.perf_counter()
     images = pq.read_table([str(_cell_path(out_dir, c, s)) for c, s in done]).to_pandas()
     images = images.sort_values(report.CELL_KEYS + ["image_index"], kind="stable")
+    images.insert(0, "detector", config.detector.backend)
     with atomic_path(out_dir / "images.parquet") as tmp:
         images.to_parquet(tmp, index=False)
-    summary = report.summarize(images)
+    refinements = report.refinements_of(config.detector.backend)
+    summary = report.summarize(images, refinements=refinements)
+    summary.insert(0, "detector", config.detector.backend)
     write_bytes(out_dir / "summary.csv", report.summary_to_csv_bytes(summary))
     max_phi = report.max_phi(summary)
     write_bytes(out_dir / "max_phi_by_scale.csv", report.summary_to_csv_bytes(max_phi))
@@ -173,13 +188,15 @@ def run_study(
 
     # --- Plots
     t_plot = time.perf_counter()
-    for name, plot, table in (
-        ("max_phi.png", report_plots.plot_max_phi, max_phi),
-        ("heatmap.png", report_plots.plot_heatmap, summary),
-        ("pose_error.png", report_plots.plot_pose_error, summary),
-    ):
+    detector = {"detector": config.detector_label}
+    for name, plot, table, options in (
+        ("max_phi.png", report_plots.plot_max_phi, max_phi, detector),
+        ("heatmap.png", report_plots.plot_heatmap, summary, detector),
+        ("pose_error.png", report_plots.plot_pose_error, summary,
+         {**detector, "refinements": refinements}),
+    ):  # fmt: skip
         with atomic_path(out_dir / name) as tmp:
-            plot(table, tmp)
+            plot(table, tmp, **options)
     wall["plots_s"] = time.perf_counter() - t_plot
     wall["total_s"] = time.perf_counter() - t0
 
@@ -194,6 +211,9 @@ def run_study(
         inputs=inputs,
         outputs=hash_files([out_dir / n for n in ["config.json", *tables, *plots]], out_dir),
         study="detectability",
+        detector=config.detector.backend,
+        family=config.dictionary,
+        backend_failures=_backend_failures(summary),
         camera_profile=config.camera.name,
         psf_scales=list(config.psf_scales),
         **ran_on,

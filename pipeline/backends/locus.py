@@ -8,7 +8,9 @@ Mapping to the project's conventions, checked in ``tests/test_backends.py``:
   +x right, +y down, +z into the printed face; the project's marker frame has +y up and +z out of
   the face, a half-turn about x. Its pinhole model reads the same +0.5 pixels, so the principal
   point goes in shifted by 0.5 too. This wheel models no lens distortion (locus.HAS_NON_RECTIFIED
-  is False), so on the fisheye its pose is a pinhole's.
+  is False), so on the fisheye its pose is a pinhole's. It refuses a principal point outside the
+  image, so a crop that does not hold the principal point (ROI tracking, the sweeps' crops) gets
+  no own pose.
 
 Size limits are applied by :func:`pipeline.detect.detect_markers` on what it returns. One thread
 (the comparison measures single-core speed); the library's ``standard`` profile.
@@ -58,6 +60,9 @@ def detect(
 ) -> Found:
     """locus' ids and corners (and own poses when ``pose`` asks) in the project's conventions."""
     detector = _detector(config.dictionary)
+    h, w = image.shape
+    if pose is not None and not (0 <= pose.cx_px < w and 0 <= pose.cy_px < h):
+        pose = None  # locus refuses a principal point outside the image: no own pose on crops
     if pose is None:
         batch = detector.detect(image)
     else:
