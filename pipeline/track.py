@@ -54,7 +54,7 @@ class MarkerSet:
 class TrackResult:
     detections: pd.DataFrame
     frames: int
-    foreign_ids: int  # detections with an id that is not on the array (false detections)
+    foreign_ids: int  # detections of ids not on the array, or repeated in a frame (false)
     pose_failures: int
     #: Frames on which the backend crashed (no detections there), in order.
     failed_frames: list[int] = field(default_factory=list)
@@ -125,8 +125,8 @@ def track(
             found = []
         seen: dict[int, np.ndarray] = {}
         for det in found:
-            if det.marker_id not in whisker_of:
-                foreign += 1
+            if det.marker_id not in whisker_of or det.marker_id in seen:
+                foreign += 1  # not on the array, or a second detection of one marker
                 continue
             if det.refine_failure is not None:
                 refine_failures[det.refine_failure] += 1

@@ -156,3 +156,16 @@ def test_a_backend_crash_costs_its_frame_and_the_run_goes_on(crashing) -> None:
     assert set(result.detections["whisker"]) == {5}
     roi = track(frames, default_camera(), MARKERS, crashing, Search("roi"))
     assert roi.failed_frames == [1, 3] and roi.detections["frame"].tolist() == [0, 2, 4]
+
+
+def test_a_marker_found_twice_in_a_frame_counts_once(monkeypatch) -> None:
+    """A backend that reports one marker twice (AprilTag 3 does on some frames): one row, the
+    second a false detection, so recall cannot pass 1."""
+    import pipeline.track as track_module
+
+    frame = frame_with_marker(SPEC.marker_ids[2])
+    once = track_module.detect_markers(frame, DetectorConfig(), camera=default_camera())
+    assert len(once) == 1
+    monkeypatch.setattr(track_module, "detect_markers", lambda *a, **k: once + once)
+    result = track([frame], default_camera(), MARKERS, DetectorConfig())
+    assert len(result.detections) == 1 and result.foreign_ids == 1
