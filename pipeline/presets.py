@@ -22,8 +22,9 @@ changes, for example ``paper/refine=contour/aruco3=on`` or ``fast/window=3-23-10
     Full frame, no refinement, a pinhole pose that ignores the lens, per-whisker maximum.
 ``hybrid``
     The fastest finder with this project's tracking and corners: locus-tag detects (in the
-    ROI, the full frame only to (re)acquire), ``lines`` refines, then the virtual-view pose,
-    integration, fixed threshold. Built to be on or beyond every peer's Pareto front (frames/s,
+    ROI, the full frame only to (re)acquire), AprilTag 3 looks again where a tracked marker was
+    lost (``recover``), ``lines`` refines, then the virtual-view pose, integration, fixed
+    threshold. Built to be on or beyond every peer's Pareto front (frames/s,
     marker recall, corner error; the README's comparison). Needs the peers extra.
 ``locus``, ``apriltag``
     The peers (:mod:`pipeline.backends`) as their authors ship them: the full frame, their own
@@ -38,6 +39,7 @@ import dataclasses
 import math
 from dataclasses import dataclass
 
+from pipeline.backends import check_family
 from pipeline.branches import AGGREGATIONS
 from pipeline.detect import DetectorConfig
 from pipeline.pose import POSE_METHODS
@@ -71,6 +73,14 @@ class PipelineConfig:
             raise ValueError(f"threshold={self.threshold!r}: choose from {THRESHOLDS}")
         if self.baseline_frames < 1:
             raise ValueError(f"baseline_frames={self.baseline_frames}: must be >= 1")
+        if self.search.recover != "none":
+            check_family(self.search.recover, self.detector.dictionary)
+
+    @property
+    def backends(self) -> tuple[str, ...]:
+        """The detector backends this pipeline runs: its detector's, and the recovery's."""
+        recover = self.search.recover
+        return (self.detector.backend,) + (() if recover == "none" else (recover,))
 
     @property
     def folder_name(self) -> str:
@@ -106,7 +116,9 @@ PRESETS: dict[str, PipelineConfig] = {
         "naive", DetectorConfig(corner_refinement="none"), Search("full"), "pinhole", "max"
     ),
     "hybrid": PipelineConfig(
-        "hybrid", DetectorConfig(corner_refinement="lines", backend="locus"), Search("roi")
+        "hybrid",
+        DetectorConfig(corner_refinement="lines", backend="locus"),
+        Search("roi", recover="apriltag"),
     ),
     **{
         peer: PipelineConfig(
@@ -183,6 +195,7 @@ CHOICES = {
     "cell": ("detector", lambda v: {"cell_px": _integer(v)}),
     "search": ("search", lambda v: {"mode": v}),
     "margin": ("search", _margin),
+    "recover": ("search", lambda v: {"recover": v}),
     "pose": ("pipeline", lambda v: {"pose_method": v}),
     "aggregation": ("pipeline", lambda v: {"aggregation": v}),
     "threshold": ("pipeline", lambda v: {"threshold": v}),

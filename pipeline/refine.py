@@ -19,12 +19,12 @@ where two straight edges meet, so it is found here from the edges instead:
    read with one bilinear ``cv2.remap`` of the (linearized) image.
 3. **Edge points.** Each profile is normalized between local levels (:func:`_normalized`):
    black from a low percentile of the inner samples of it and its neighbours along the edge
-   (robust to the blur of neighbouring white code bits), white from its outer half, extended
-   with the slope of the light across the edge where the profile reaches beyond the edge's
-   blur, so uneven lighting does not bias the area. The halfway crossing nearest the expected
-   edge centres a window of +-4 blur sigmas (at least 2 px; the blur is measured from the
-   profiles) in which the edge position is the window's outer end minus the area under the
-   normalized profile. That area is preserved by pixel-area sampling, bilinear reading and
+   (robust to the blur of neighbouring white code bits), white from its own outer half,
+   extended with the slope of the light across the edge (the median over the edge, fitted
+   beyond half a module outside it, where the edge's blur has ended), so uneven lighting does
+   not bias the area. The halfway crossing nearest the expected edge centres a window of +-2 px
+   in which the edge position is the window's outer end minus the area under the normalized
+   profile. That area is preserved by pixel-area sampling, bilinear reading and
    any point-symmetric blur or sharpening the window takes in, so the estimate is unbiased
    whatever the edge's sub-pixel phase; the halfway crossing alone would be off by up to
    0.09 px.
@@ -71,11 +71,19 @@ OUTER_MODULES = 1.0  # profile length into the white quiet zone, in modules
 STEP_PX = 0.5  # largest sample spacing along a profile (virtual pixels, about image pixels)
 ALONG_STEP_PX = 1.0  # spacing of the profiles along an edge
 MIN_PROFILES, MAX_PROFILES = 6, 64  # per edge
-WINDOW_PX = 2.0  # least half-width of the window in which an edge's position is measured
-WINDOW_SIGMAS = 4.0  # the window's half-width in units of the edge's blur (Gaussian sigma)
-RUN_PROFILES = 7  # profiles (odd) that share black level and white slope along an edge
-CLEAR_SIGMAS = 3.0  # the white slope is fitted this many blur sigmas beyond the edge
-MIN_SLOPE_SAMPLES = 4  # fewer samples beyond that: no slope
+#: Half-width of the window in which an edge's position is measured. A window widened with
+#: the blur measured from the profiles (4 sigmas) and a light slope fitted per run of profiles
+#: beyond 3 blur sigmas were tried: on 30 full frames of the speed sample (prototype camera,
+#: 13 markers, locus corners) they left 0.121 px median corner error at 20.4 frames/s (ROI
+#: tracking, one core) against 0.100 px at 25-26 frames/s for this window and the per-edge
+#: slope beyond half a module.
+WINDOW_PX = 2.0
+RUN_PROFILES = 7  # profiles (odd) that share a black level along an edge
+#: The light's slope across an edge is fitted beyond this many modules outside the edge.
+SLOPE_CLEAR_MODULES = 0.5
+#: Fewer samples there (3 px at STEP_PX): no slope; on 20-40 px markers with the twin's noise
+#: a slope from 4 samples put corners up to 0.75 px off.
+MIN_SLOPE_SAMPLES = 6
 BLACK_PERCENTILE = 15.0  # of the samples from 0.6 to 0.3 module inside an edge
 MIN_CONTRAST = 0.2  # (white - black) / white, in linear light
 MIN_INLIER_FRACTION = 0.6  # of an edge's profiles, to accept its line
@@ -189,14 +197,11 @@ def _edge_lines(
     ).reshape(4, n_along, n_s)
 
     j_edge = t_edge * (n_s - 1)  # sample index of the expected edge
-    v, ok = _normalized(values, j_edge, None)
+    # the profiles reach OUTER_MODULES beyond the edge: the slope's share of that
+    clear = SLOPE_CLEAR_MODULES / OUTER_MODULES * (n_s - 1 - j_edge.max())
+    v, ok = _normalized(values, j_edge, clear)
     j, found = _crossings(v, ok, j_edge)
-    sigma = _blur_sigma(v, j, found, ds)
-    # again, now following light that falls off across the edge beyond the edge's blur
-    v, ok = _normalized(values, j_edge, CLEAR_SIGMAS * sigma / ds.min())
-    j, found = _crossings(v, ok, j_edge)
-    half_px = max(WINDOW_SIGMAS * sigma, WINDOW_PX)
-    edge = _edge_positions(v, j, found, half_px, ds)
+    edge = _edge_positions(v, j, found, WINDOW_PX, ds)
     found = np.isfinite(edge)
     points = p_in + np.where(found, edge / (n_s - 1), t_edge)[..., None] * delta
     return _fit_lines(points, found, max(0.1 * length.min() / modules, 0.15))
@@ -212,7 +217,7 @@ def _runs(x: np.ndarray) -> np.ndarray:
 
 
 def _normalized(
-    values: np.ndarray, j_edge: np.ndarray, clear: float | None
+    values: np.ndarray, j_edge: np.ndarray, clear: float
 ) -> tuple[np.ndarray, np.ndarray]:
     """Profiles (4, n, n_s) scaled to 0 at their black level and 1 at their white level, and
     whether each has the contrast to be used.
@@ -220,9 +225,10 @@ def _normalized(
     Both levels are local. Black: a low percentile of the inner half of the black part over a
     run of neighbouring profiles (robust to the blur of neighbouring white code bits). White:
     the mean of the outer half of the profile's white part, extended as a straight line whose
-    slope (pooled over the run) is fitted to the samples more than ``clear`` samples beyond the
-    edge, so that light falling off across the edge is followed; no slope where ``clear`` is
-    None or too few samples lie beyond it (the edge's blur would pass for a slope).
+    slope (the median over the edge's profiles) is fitted to the samples more than ``clear``
+    samples beyond the edge, so that light falling off across the edge is followed; no slope
+    where too few samples lie beyond it. The contrast test uses the flat levels: a noisy slope
+    must not discard a profile.
     """
     n_s = values.shape[2]
     c_in = int(0.5 * j_edge.min()) + 1
@@ -231,14 +237,18 @@ def _normalized(
     k = int(BLACK_PERCENTILE / 100.0 * (inner.shape[2] - 1))
     black = np.partition(inner, k, axis=2)[..., k]
     mid = 0.5 * (c_out + n_s - 1)
-    white = np.broadcast_to(values[:, :, c_out:].mean(axis=2)[..., None], values.shape)
-    c_slope = n_s if clear is None else int(np.ceil(j_edge.max() + clear))
+    flat = values[:, :, c_out:].mean(axis=2)
+    ok = flat - black >= MIN_CONTRAST * flat
+    white = np.broadcast_to(flat[..., None], values.shape)
+    c_slope = int(np.ceil(j_edge.max() + clear))
     if n_s - c_slope >= MIN_SLOPE_SAMPLES:
         x = np.arange(c_slope, n_s) - 0.5 * (c_slope + n_s - 1)
-        slope = _runs((values[:, :, c_slope:] * x).sum(axis=2) / (x * x).sum()).mean(axis=2)
+        slope = np.median(
+            (values[:, :, c_slope:] * x).sum(axis=2) / (x * x).sum(), axis=1, keepdims=True
+        )
         white = white + slope[..., None] * (np.arange(n_s) - mid)
     contrast = white - black[..., None]
-    ok = contrast.min(axis=2) >= MIN_CONTRAST * white.max(axis=2)
+    ok &= contrast.min(axis=2) > 0
     if np.any(ok.sum(axis=1) < MIN_INLIER_FRACTION * values.shape[1]):
         raise _RefineError("low contrast")
     return (values - black[..., None]) / np.where(ok[..., None], contrast, 1.0), ok
@@ -263,19 +273,6 @@ def _window(j: np.ndarray, half_px: float, ds: np.ndarray, n_s: int):
     j_lo = np.minimum(np.maximum(j - half, 0), n_s - 1 - 2 * half)
     lo = (np.arange(j.size) * n_s).reshape(j.shape) + j_lo
     return half, j_lo, lo, lo + 2 * half
-
-
-def _blur_sigma(v: np.ndarray, j: np.ndarray, found: np.ndarray, ds: np.ndarray) -> float:
-    """The edges' blur, px: the Gaussian sigma with the same area under v (1 - v) (that area is
-    sigma / sqrt(pi) for a Gaussian edge), median over the profiles, measured in a window
-    that widens once to take in a wide blur."""
-    spread = np.cumsum(np.clip(v, 0, 1) * np.clip(1 - v, 0, 1), axis=2).ravel()
-    half_px = WINDOW_PX
-    for _ in range(2):
-        _, _, lo, hi = _window(j, half_px, ds, v.shape[2])
-        sigma = np.sqrt(np.pi) * float(np.median((spread[hi] - spread[lo])[found] * ds[found]))
-        half_px = max(WINDOW_SIGMAS * sigma, WINDOW_PX)
-    return sigma
 
 
 def _edge_positions(v: np.ndarray, j: np.ndarray, found: np.ndarray, half_px: float, ds):

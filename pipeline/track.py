@@ -13,15 +13,16 @@ goes on with a fresh worker.
 
 from __future__ import annotations
 
+import dataclasses
 from collections import Counter
-from collections.abc import Iterable
+from collections.abc import Container, Iterable
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
 import pandas as pd
 
-from pipeline.backends import BackendCrashError
+from pipeline.backends import BackendCrashError, get_backend
 from pipeline.detect import Detection, DetectorConfig, detect_markers
 from pipeline.pose import PoseEstimate, estimate_pose
 from scenes.camera import FisheyeCamera
@@ -70,15 +71,23 @@ class Search:
     """Where to look. ``"full"``: the whole frame (its image circle), every frame. ``"roi"``:
     only the box around the markers' last corners (plus ``margin_px``); the whole frame to
     (re)acquire: on the first frame, after a tracked marker is lost, and every
-    ``reacquire_every`` frames while fewer than all markers are tracked."""
+    ``reacquire_every`` frames while fewer than all markers are tracked.
+
+    ``recover``: a second backend (or ``"none"``) that looks again, in its box of the previous
+    frame, for each marker the detector lost in this frame. Detectors miss different markers
+    (a leaf's edge across the border, a glint), so the second look costs a few small crops on
+    the frames where a marker is lost and nothing elsewhere."""
 
     mode: str = "full"
     margin_px: int = 48
     reacquire_every: int = 15
+    recover: str = "none"
 
     def __post_init__(self) -> None:
         if self.mode not in SEARCHES:
             raise ValueError(f"search={self.mode!r}: choose from {', '.join(SEARCHES)}")
+        if self.recover != "none":
+            get_backend(self.recover)
         if self.margin_px < 0 or self.reacquire_every < 1:
             raise ValueError("need margin_px >= 0 and reacquire_every >= 1")
 
@@ -94,6 +103,7 @@ def track(
     """Detect the array's markers and estimate their poses in every frame; the backend's own
     pose is asked for where it has one."""
     whisker_of = {m: i for i, m in enumerate(markers.marker_ids)}
+    recover = recovery_detector(detector, search.recover)
     rows: list[_Row] = []
     foreign = failures = n_frames = 0
     crashed: list[int] = []
@@ -115,17 +125,21 @@ def track(
                 box = _box(np.concatenate(list(last.values())), frame.shape, search.margin_px)
         roi = box is not None
         since_full = since_full + 1 if roi else 0
-        x0, y0, x1, y1 = box if roi else circle
+        box = box if roi else circle
+        candidates: list[tuple[Detection, Container[int]]] = []  # and the ids it may be
         try:
-            found = detect_markers(
-                frame[y0:y1, x0:x1], detector, (x0, y0), camera, own_pose_size_mm=markers.size_mm
-            )
+            candidates += [(d, whisker_of) for d in _detect(frame, box, detector, camera, markers)]
+            lost = set(last) - {d.marker_id for d, _ in candidates} if recover else ()
+            for marker_id in sorted(lost):
+                near = _box(last[marker_id], frame.shape, search.margin_px)
+                candidates += [
+                    (d, (marker_id,)) for d in _detect(frame, near, recover, camera, markers)
+                ]
         except BackendCrashError:
             crashed.append(f)
-            found = []
         seen: dict[int, np.ndarray] = {}
-        for det in found:
-            if det.marker_id not in whisker_of or det.marker_id in seen:
+        for det, wanted in candidates:
+            if det.marker_id not in wanted or det.marker_id in seen:
                 foreign += 1  # not on the array, or a second detection of one marker
                 continue
             if det.refine_failure is not None:
@@ -141,6 +155,31 @@ def track(
             since_full = search.reacquire_every  # a tracked marker was lost: search it all next
         last = seen
     return TrackResult(_table(rows), n_frames, foreign, failures, crashed, refine_failures)
+
+
+def recovery_detector(detector: DetectorConfig, backend: str) -> DetectorConfig | None:
+    """The detector that looks again for lost markers: ``backend`` on the same family, with the
+    same refinement where it offers it (else its own corners, or ``lines`` if asked for)."""
+    if backend == "none":
+        return None
+    lines = detector.corner_refinement == "lines"
+    refinement = detector.corner_refinement if backend == "opencv" else "none"
+    return dataclasses.replace(
+        detector, backend=backend, corner_refinement="lines" if lines else refinement
+    )
+
+
+def _detect(
+    frame: np.ndarray,
+    box: tuple[int, int, int, int],
+    detector: DetectorConfig,
+    camera: FisheyeCamera,
+    markers: MarkerSet,
+) -> list[Detection]:
+    x0, y0, x1, y1 = box
+    return detect_markers(
+        frame[y0:y1, x0:x1], detector, (x0, y0), camera, own_pose_size_mm=markers.size_mm
+    )
 
 
 def _box(corners: np.ndarray, shape: tuple[int, ...], margin: int) -> tuple[int, int, int, int]:

@@ -13,7 +13,7 @@ from test_tables import SPEC, frame_with_marker
 from pipeline.backends import BACKENDS, Backend, available
 from pipeline.backends.isolated import stop_workers
 from pipeline.detect import DetectorConfig
-from pipeline.track import MarkerSet, Search, pose_arrays, track
+from pipeline.track import MarkerSet, Search, pose_arrays, recovery_detector, track
 from scenes.camera import default_camera
 from scenes.profile import load_profile
 from scenes.tables import (
@@ -169,3 +169,36 @@ def test_a_marker_found_twice_in_a_frame_counts_once(monkeypatch) -> None:
     monkeypatch.setattr(track_module, "detect_markers", lambda *a, **k: once + once)
     result = track([frame], default_camera(), MARKERS, DetectorConfig())
     assert len(result.detections) == 1 and result.foreign_ids == 1
+
+
+def test_a_lost_marker_is_looked_for_again_by_the_recovery_backend(monkeypatch) -> None:
+    """The detector loses the marker on the second frame; ``recover`` finds it again in its box
+    of the first frame, and only there (no recovery: one row)."""
+    import pipeline.track as track_module
+
+    frame = frame_with_marker(SPEC.marker_ids[2])
+    real = track_module._detect
+    calls: list[tuple[str, tuple]] = []
+
+    def flaky(frame_, box, detector, camera, markers):
+        calls.append((detector.backend, box))
+        if box == default_camera().image_circle_box() and len(calls) > 1:
+            return []  # the main (full-frame) search misses the marker from the second frame on
+        return real(frame_, box, detector, camera, markers)
+
+    monkeypatch.setattr(track_module, "_detect", flaky)
+    lone = track([frame, frame], default_camera(), MARKERS, DetectorConfig())
+    assert lone.detections["frame"].tolist() == [0]
+    calls.clear()
+    search = Search("full", recover="opencv")
+    again = track([frame, frame], default_camera(), MARKERS, DetectorConfig(), search)
+    assert again.detections["frame"].tolist() == [0, 1]
+    first_corners = corners_of(again.detections)[0]
+    (x0, y0, x1, y1) = calls[-1][1]  # the recovery's box: around the first frame's corners
+    assert x1 - x0 < 300 and (first_corners >= [x0, y0]).all() and (first_corners < [x1, y1]).all()
+    assert recovery_detector(DetectorConfig(), "opencv").corner_refinement == "subpix"
+    assert (
+        recovery_detector(DetectorConfig(corner_refinement="lines"), "locus").corner_refinement
+        == "lines"
+    )
+    assert recovery_detector(DetectorConfig(), "none") is None

@@ -55,7 +55,7 @@ def bench_pipeline(
     ``bench.json`` and ``manifest.json`` there; the folder is claimed before any work
     (FieldError on ``out`` if another command's).
     """
-    for backend in dict.fromkeys(p.detector.backend for p in pipelines):
+    for backend in dict.fromkeys(b for p in pipelines for b in p.backends):
         require(backend)
     clock = RunClock()
     if out is not None:

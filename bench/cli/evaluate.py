@@ -119,7 +119,8 @@ def _missing_detector(pipeline: PipelineConfig) -> str | None:
     from pipeline.backends import BackendUnavailableError, require
 
     try:
-        require(pipeline.detector.backend)
+        for backend in pipeline.backends:
+            require(backend)
     except BackendUnavailableError as exc:
         return f"--pipeline {pipeline.name}: {exc}"
     return None
@@ -215,7 +216,7 @@ def _installed_presets() -> list[PipelineConfig]:
     refused, but a default without the optional peers still runs."""
     from pipeline.backends import available
 
-    return [p for p in PRESETS.values() if available(p.detector.backend)]
+    return [p for p in PRESETS.values() if all(map(available, p.backends))]
 
 
 def add_compare_options(p: argparse.ArgumentParser) -> None:

@@ -128,7 +128,7 @@ def cmd_detect_images(args: argparse.Namespace) -> int:
         except ValueError as exc:
             return fail(f"--family: {exc}")
     try:
-        for backend in dict.fromkeys(p.detector.backend for p in pipelines):
+        for backend in dict.fromkeys(b for p in pipelines for b in p.backends):
             require(backend)
     except BackendUnavailableError as exc:
         return fail(f"--pipelines: {exc}")

@@ -149,9 +149,9 @@ def for_family(config: PipelineConfig, family: str | None) -> PipelineConfig:
         return config
     try:
         detector = dataclasses.replace(config.detector, dictionary=family)
+        return dataclasses.replace(config, detector=detector)
     except ValueError as exc:
         raise ValueError(f"pipeline {config.name}: {exc}") from None
-    return dataclasses.replace(config, detector=detector)
 
 
 def _array(record: dict) -> ArraySpec | None:

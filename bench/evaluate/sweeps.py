@@ -239,10 +239,12 @@ def sweep_pipelines(pipelines: list[PipelineConfig], config: SweepConfig) -> lis
     for p in pipelines:
         try:
             detector = dataclasses.replace(p.detector, dictionary=config.dictionary)
+            p = dataclasses.replace(p, detector=detector)
         except ValueError as exc:
             raise ValueError(f"pipeline {p.name!r} in the sweeps: {exc}") from None
-        require(detector.backend)
-        out.append(dataclasses.replace(p, detector=detector))
+        for backend in p.backends:
+            require(backend)
+        out.append(p)
     return out
 
 
