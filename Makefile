@@ -62,7 +62,7 @@ compare: setup
 	  --out results/compare/default
 
 bench-pipeline: setup
-	$(BIN)/whiskerbench bench pipeline --out results/compare/default
+	$(BIN)/whiskerbench bench pipeline --out results/compare/bench
 
 lint: setup
 	$(BIN)/ruff check .

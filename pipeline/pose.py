@@ -34,6 +34,9 @@ def virtual_view_rotation(axis_cam: np.ndarray) -> np.ndarray:
 
 
 POSE_METHODS = ("virtual", "fisheye", "pinhole")
+#: A solution whose reprojection error exceeds this fraction of the marker's side is a mirror
+#: image, not noise (a good fit is under a pixel; the mirror ~0.7 of the side).
+MIRROR_SIDES = 0.25
 
 
 def estimate_pose(
@@ -71,8 +74,11 @@ def _solve(image_points: np.ndarray, size_mm: float, f: float, R_virt_cam: np.nd
     """IPPE_SQUARE on pinhole points (centred, focal ``f``) of a view rotated by R_virt_cam."""
     K = np.array([[f, 0.0, 0.0], [0.0, f, 0.0], [0.0, 0.0, 1.0]])
     # IPPE_SQUARE returns NaN for some exactly fronto-parallel squares (integer corners of a
-    # marker facing the view); the general IPPE solves those.
-    for flags in (cv2.SOLVEPNP_IPPE_SQUARE, cv2.SOLVEPNP_IPPE):
+    # marker facing the view), and for a square centred on the view's axis both IPPE methods
+    # return the mirror image (reprojection error ~0.7 of the side); SQPNP, a global solver,
+    # solves those.
+    side = np.linalg.norm(np.diff(image_points, axis=0, append=image_points[:1]), axis=1).mean()
+    for flags in (cv2.SOLVEPNP_IPPE_SQUARE, cv2.SOLVEPNP_IPPE, cv2.SOLVEPNP_SQPNP):
         _, rvecs, tvecs, errors = cv2.solvePnPGeneric(
             marker_corners_marker(size_mm), image_points.reshape(4, 1, 2), K, None, flags=flags
         )
@@ -81,10 +87,11 @@ def _solve(image_points: np.ndarray, size_mm: float, f: float, R_virt_cam: np.nd
             for k in range(len(rvecs))
             if np.isfinite(rvecs[k]).all() and np.isfinite(tvecs[k]).all()
         ]
-        if finite:
+        if finite and np.asarray(errors, float).ravel()[finite].min() < MIRROR_SIDES * side:
             break
     else:
-        raise ValueError("solvePnP found no finite pose")
+        if not finite:
+            raise ValueError("solvePnP found no finite pose")
     rvecs, tvecs = [rvecs[k] for k in finite], [tvecs[k] for k in finite]
     errors = np.asarray(errors, dtype=float).ravel()[finite]
     best = int(np.argmin(errors))
