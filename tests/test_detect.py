@@ -11,6 +11,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from pipeline.backends import available
 from pipeline.presets import PRESETS
 from scenes.tables import DETECTIONS, corners_of, names
 
@@ -21,7 +22,18 @@ def sample_video(rendered_pair):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name", list(PRESETS))
+@pytest.mark.parametrize(
+    "name",
+    [
+        pytest.param(
+            name,
+            marks=pytest.mark.skipif(
+                not all(map(available, preset.backends)), reason="needs the peers extra"
+            ),
+        )
+        for name, preset in PRESETS.items()
+    ],
+)
 def test_every_preset_runs_and_paper_finds_the_branch(sample_video, tmp_path, name) -> None:
     from bench.evaluate.detect import run_detect
     from scenes.profile import load_profile
