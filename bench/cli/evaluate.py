@@ -30,7 +30,7 @@ def _pipeline(text: str) -> PipelineConfig:
         raise argparse.ArgumentTypeError(str(exc)) from None
 
 
-def _pipelines(text: str) -> list[PipelineConfig]:
+def pipelines(text: str) -> list[PipelineConfig]:
     names = name_list("--pipelines")(text)
     return [_pipeline(n) for n in names]
 
@@ -223,7 +223,7 @@ def add_compare_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("dataset", type=Path, help="dataset folder (made by whiskerbench dataset)")
     p.add_argument(
         "--pipelines",
-        type=_pipelines,
+        type=pipelines,
         metavar="NAME,...",
         help="variants to compare, comma-separated; each "
         + VARIANT_HELP
@@ -323,7 +323,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
 def add_bench_pipeline_options(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--pipelines",
-        type=_pipelines,
+        type=pipelines,
         metavar="NAME,...",
         help=f"variants to time; ratios are against the first (default {DEFAULT_PIPELINES_HELP})",
     )

@@ -9,7 +9,7 @@ import sys
 from pathlib import Path
 
 from bench.cli.args import check_out_folder
-from bench.cli.evaluate import VARIANT_HELP, _pipelines
+from bench.cli.evaluate import VARIANT_HELP, pipelines
 from scenes.calibration_import import FORMATS
 from scenes.validation import FieldError
 
@@ -48,7 +48,7 @@ def add_images_parser(subparsers: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--pipelines",
-        type=_pipelines,
+        type=pipelines,
         required=True,
         metavar="NAME,...",
         help="pipelines whose detectors run, comma-separated; each " + VARIANT_HELP,

@@ -24,6 +24,7 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
+from bench.common.stills import IMAGE_SUFFIXES
 from bench.common.video import read_video
 from bench.lens.calibrate import lens_variance, needs_calibration, processing_curve
 from bench.lens.edges import PIXEL_VARIANCE_PX2, edge_geometry, edge_samples, fit_edges
@@ -37,7 +38,6 @@ from scenes.marker import check_dictionary
 from scenes.profile import CameraProfile
 from scenes.validation import FieldError
 
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
 JPEG_SUFFIXES = (".jpg", ".jpeg")
 DEFAULT_MAX_FRAMES = 300
 DEFAULT_BIN_DEG = 10.0
