@@ -7,7 +7,9 @@ import sys
 
 import pytest
 
-from pipeline.presets import PRESETS, get_pipeline
+from pipeline.detect import DetectorConfig
+from pipeline.presets import PRESETS, PipelineConfig, get_pipeline
+from pipeline.track import Search
 
 
 def test_a_preset_name_is_the_preset():
@@ -82,3 +84,13 @@ def test_cell_choice_sets_the_bit_sampling():
     assert get_pipeline("paper/cell=8").detector.cell_px == 8
     with pytest.raises(ValueError, match="cell_px=1: allowed range is 2..32"):
         get_pipeline("paper/cell=1")
+
+
+def test_recover_names_a_backend_that_reads_the_family() -> None:
+    assert get_pipeline("paper/recover=apriltag").backends == ("opencv", "apriltag")
+    assert PRESETS["hybrid"].backends == ("locus", "apriltag")
+    assert PRESETS["paper"].backends == ("opencv",)
+    with pytest.raises(ValueError, match="recover=foo.*choose from"):
+        get_pipeline("paper/recover=foo")
+    with pytest.raises(ValueError, match="locus cannot detect family 7x7_50"):
+        PipelineConfig("x", DetectorConfig("7x7_50"), Search(recover="locus"))
