@@ -363,3 +363,27 @@ def default_camera() -> FisheyeCamera:
         cy_px=(height - 1) / 2.0,
         theta_max_deg=95.0,
     )
+
+
+@functools.lru_cache(maxsize=16)
+def pinhole_camera(width_px: int, height_px: int) -> FisheyeCamera:
+    """A pinhole camera the size of an image, for ``lines`` on images without a camera model.
+
+    ``lines`` needs the marker's edges straight in a virtual pinhole view; any pinhole keeps
+    straight lines straight, whatever its focal length. The lens models have no pinhole by name:
+    the unified model with xi = 0 is one exactly (d = sin(theta) / cos(theta) = tan(theta)),
+    valid below 90 degrees. The focal length is the image's longer side (a 53-degree field).
+    """
+    f_px = float(max(width_px, height_px))
+    corner_deg = math.degrees(math.atan(math.hypot(width_px, height_px) / 2 / f_px))
+    return FisheyeCamera(
+        width_px=width_px,
+        height_px=height_px,
+        fx_px=f_px,
+        fy_px=f_px,
+        cx_px=(width_px - 1) / 2,
+        cy_px=(height_px - 1) / 2,
+        theta_max_deg=corner_deg + 1.0,  # the whole image, with a margin
+        model="ucm",
+        params=(0.0,),
+    )

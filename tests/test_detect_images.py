@@ -15,6 +15,7 @@ import pytest
 from bench.cli.main import main
 from bench.evaluate import images as job
 from pipeline import backends
+from scenes.camera import pinhole_camera
 from scenes.marker import get_dictionary
 
 SUPERSAMPLE = 8
@@ -182,7 +183,7 @@ def test_a_crash_costs_the_image_not_the_run(photos, tmp_path, capsys, monkeypat
 
 
 def test_pinhole_camera_projects_as_a_pinhole():
-    camera = job.pinhole_camera(360, 240)
+    camera = pinhole_camera(360, 240)
     points = np.array([[10.0, -20.0, 100.0], [-35.0, 12.0, 80.0], [0.0, 0.0, 5.0]])
     expected = camera.fx_px * points[:, :2] / points[:, 2:] + [camera.cx_px, camera.cy_px]
     assert np.allclose(camera.project(points), expected, atol=1e-9)

@@ -6,7 +6,7 @@ once, grey, 8-bit, and every pipeline's detector finds its markers, timed alone 
 excluded). Corners follow :mod:`scenes.conventions` (pixel centres at integer coordinates,
 ArUco corner order), in the image's pixels as stored in the file (EXIF orientation is not
 applied). ``lines`` refinement needs a camera model: the user's (:mod:`scenes.profile`,
-:mod:`scenes.calibration_import`), else :func:`pinhole_camera` sized to each image.
+:mod:`scenes.calibration_import`), else :func:`scenes.camera.pinhole_camera` sized to each image.
 
 Bad input raises :class:`bench.common.stills.StillImageError` (:class:`ImageInputError` for
 the lists and the truth file) naming the file. Every output is written at the end (atomically),
@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-import functools
 import math
 import time
 from collections import Counter
@@ -44,7 +43,7 @@ from bench.common.video import draw_preview
 from pipeline.backends import BackendCrashError
 from pipeline.detect import detect_markers
 from pipeline.presets import PipelineConfig
-from scenes.camera import FisheyeCamera
+from scenes.camera import FisheyeCamera, pinhole_camera
 from scenes.marker import get_dictionary
 
 KIND = "detect-images"
@@ -152,30 +151,6 @@ def read_truth(path: Path, files: Sequence[Path], dictionary: str) -> Truth:
             f"{path}: line {k + 2}: marker {table.marker_id[k]} of {table.image[k]} is listed twice"
         )
     return Truth(path, table)
-
-
-@functools.lru_cache(maxsize=16)
-def pinhole_camera(width_px: int, height_px: int) -> FisheyeCamera:
-    """A pinhole camera the size of an image, for ``lines`` on images without a camera model.
-
-    ``lines`` needs the marker's edges straight in a virtual pinhole view; any pinhole keeps
-    straight lines straight, whatever its focal length. The lens models have no pinhole by name:
-    the unified model with xi = 0 is one exactly (d = sin(theta) / cos(theta) = tan(theta)),
-    valid below 90 degrees. The focal length is the image's longer side (a 53-degree field).
-    """
-    f_px = float(max(width_px, height_px))
-    corner_deg = math.degrees(math.atan(math.hypot(width_px, height_px) / 2 / f_px))
-    return FisheyeCamera(
-        width_px=width_px,
-        height_px=height_px,
-        fx_px=f_px,
-        fy_px=f_px,
-        cx_px=(width_px - 1) / 2,
-        cy_px=(height_px - 1) / 2,
-        theta_max_deg=corner_deg + 1.0,  # the whole image, with a margin
-        model="ucm",
-        params=(0.0,),
-    )
 
 
 def _camera_for(path: Path, image: np.ndarray, camera: FisheyeCamera | None) -> FisheyeCamera:
