@@ -76,6 +76,12 @@ class PipelineConfig:
         if self.search.recover != "none":
             check_family(self.search.recover, self.detector.dictionary)
 
+    def with_family(self, family: str) -> PipelineConfig:
+        """This pipeline with its detector on the marker ``family``; ValueError (one line) when
+        a backend it runs cannot detect it."""
+        detector = dataclasses.replace(self.detector, dictionary=family)
+        return dataclasses.replace(self, detector=detector)
+
     @property
     def backends(self) -> tuple[str, ...]:
         """The detector backends this pipeline runs: its detector's, and the recovery's."""
@@ -212,6 +218,7 @@ def get_pipeline(name: str) -> PipelineConfig:
         )
     config = dataclasses.replace(PRESETS[preset], name=name)
     detector: dict = {}  # applied together: a backend and its refinement are one choice
+    detector_changes: list[str] = []
     for change in changes:
         key, _, value = change.partition("=")
         if key not in CHOICES or not value:
@@ -224,7 +231,7 @@ def get_pipeline(name: str) -> PipelineConfig:
             fields = parse(value)
             if part == "detector":
                 detector.update(fields)
-                dataclasses.replace(config.detector, **fields)  # this change alone is valid
+                detector_changes.append(change)
             elif part == "search":
                 config = dataclasses.replace(
                     config, search=dataclasses.replace(config.search, **fields)
@@ -232,16 +239,14 @@ def get_pipeline(name: str) -> PipelineConfig:
             else:
                 config = dataclasses.replace(config, **fields)
         except ValueError as exc:
-            if part == "detector" and "detector " in str(exc):
-                continue  # a backend/refinement pair checked as a whole below
             raise ValueError(f"pipeline {name!r}: {change}: {exc}") from None
     try:
         config = dataclasses.replace(
             config, detector=dataclasses.replace(config.detector, **detector)
         )
     except ValueError as exc:
-        raise ValueError(f"pipeline {name!r}: {exc}") from None
-    peer_only = [c for c in changes if c.partition("=")[0] in OPENCV_CHOICES]
+        raise ValueError(f"pipeline {name!r}: {'/'.join(detector_changes)}: {exc}") from None
+    peer_only = [c for c in detector_changes if c.partition("=")[0] in OPENCV_CHOICES]
     if config.detector.backend != "opencv" and peer_only:
         raise ValueError(
             f"pipeline {name!r}: {peer_only[0]} sets an OpenCV parameter, which detector "

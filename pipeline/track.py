@@ -57,7 +57,8 @@ class TrackResult:
     frames: int
     foreign_ids: int  # detections of ids not on the array, or repeated in a frame (false)
     pose_failures: int
-    #: Frames on which the backend crashed (no detections there), in order.
+    #: Frames on which a backend crashed, in order (the detector's: no detections there; the
+    #: recovery's: only the detector's).
     failed_frames: list[int] = field(default_factory=list)
     #: Why refinement "lines" kept the backend's corners: reason -> detections.
     refine_failures: Counter[str] = field(default_factory=Counter)
@@ -162,11 +163,9 @@ def recovery_detector(detector: DetectorConfig, backend: str) -> DetectorConfig 
     same refinement where it offers it (else its own corners, or ``lines`` if asked for)."""
     if backend == "none":
         return None
-    lines = detector.corner_refinement == "lines"
-    refinement = detector.corner_refinement if backend == "opencv" else "none"
-    return dataclasses.replace(
-        detector, backend=backend, corner_refinement="lines" if lines else refinement
-    )
+    keep = backend == "opencv" or detector.corner_refinement == "lines"
+    refinement = detector.corner_refinement if keep else "none"
+    return dataclasses.replace(detector, backend=backend, corner_refinement=refinement)
 
 
 def _detect(

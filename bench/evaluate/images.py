@@ -17,7 +17,6 @@ costs that image (``failures.csv``), not the run.
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 import math
 import time
 from collections import Counter
@@ -171,10 +170,7 @@ def _camera_for(path: Path, image: np.ndarray, camera: FisheyeCamera | None) -> 
 def with_family(pipelines: Sequence[PipelineConfig], family: str) -> list[PipelineConfig]:
     """The pipelines with their detectors on ``family``; ValueError (one line) for a backend
     that cannot detect it."""
-    return [
-        dataclasses.replace(p, detector=dataclasses.replace(p.detector, dictionary=family))
-        for p in pipelines
-    ]
+    return [p.with_family(family) for p in pipelines]
 
 
 def detect_images(

@@ -18,7 +18,6 @@ true gap; an estimate within one gap of no true branch is a false positive. The 
 
 from __future__ import annotations
 
-import dataclasses
 import json
 from contextlib import nullcontext
 from dataclasses import dataclass
@@ -148,8 +147,7 @@ def for_family(config: PipelineConfig, family: str | None) -> PipelineConfig:
     if family is None or family == config.detector.dictionary:
         return config
     try:
-        detector = dataclasses.replace(config.detector, dictionary=family)
-        return dataclasses.replace(config, detector=detector)
+        return config.with_family(family)
     except ValueError as exc:
         raise ValueError(f"pipeline {config.name}: {exc}") from None
 

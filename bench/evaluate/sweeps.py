@@ -238,8 +238,7 @@ def sweep_pipelines(pipelines: list[PipelineConfig], config: SweepConfig) -> lis
     out = []
     for p in pipelines:
         try:
-            detector = dataclasses.replace(p.detector, dictionary=config.dictionary)
-            p = dataclasses.replace(p, detector=detector)
+            p = p.with_family(config.dictionary)
         except ValueError as exc:
             raise ValueError(f"pipeline {p.name!r} in the sweeps: {exc}") from None
         for backend in p.backends:
