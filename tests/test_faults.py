@@ -84,6 +84,12 @@ def _tables(out: Path) -> dict[str, bytes]:
     }
 
 
+def _finished_cells(folder: Path) -> list[Path]:
+    """The study's finished cells: not a killed writer's temporary file, which also ends in
+    .parquet (``.<name>.<pid>.tmp-<random>.parquet``) and which the rerun deletes."""
+    return [p for p in folder.glob("cells/*.parquet") if not p.name.startswith(".")]
+
+
 def test_killed_parent_takes_its_workers_and_the_rerun_is_identical(tmp_path):
     clean, killed = tmp_path / "clean", tmp_path / "killed"
     _run(clean)
@@ -98,7 +104,7 @@ def test_killed_parent_takes_its_workers_and_the_rerun_is_identical(tmp_path):
     tree: dict[int, int] = {}
     try:
         deadline = time.monotonic() + 240
-        while not list(killed.glob("cells/*.parquet")):
+        while not _finished_cells(killed):
             assert parent.poll() is None, (tmp_path / "killed.log").read_text()[-2000:]
             assert time.monotonic() < deadline, "no cell written in 240 s"
             time.sleep(0.05)
@@ -124,7 +130,7 @@ def test_killed_parent_takes_its_workers_and_the_rerun_is_identical(tmp_path):
             if _alive(pid, start):
                 os.kill(pid, signal.SIGKILL)
 
-    kept = {path: path.stat().st_mtime_ns for path in killed.glob("cells/*.parquet")}
+    kept = {path: path.stat().st_mtime_ns for path in _finished_cells(killed)}
     _run(killed)
 
     expected, got = _tables(clean), _tables(killed)
