@@ -84,6 +84,8 @@ def test_sample_files_and_manifest(dataset) -> None:
     assert manifest["camera_profile"] == config.camera.name == record["camera_profile"]
     assert manifest["config"]["camera"] == config.camera.to_json()
     assert manifest["variant"] and manifest["frames_per_s"] > 0
+    assert record["layout_seed"] == sample.layout_seed(config.seed)
+    assert manifest["foliage_groups"] == {record["foliage_group"]: [sample.sample_id]}
     stages = manifest["stage_s"]
     assert stages["render_s"] > 0 and stages["optics_s"] > 0 and stages["sensor_s"] > 0
     assert sum(stages.values()) == pytest.approx(record["timing_s"]["total_s"])
@@ -165,6 +167,34 @@ def test_same_seed_same_labels_other_seed_other_foliage() -> None:
     pd.testing.assert_frame_equal(a, b)
     c = simulate_sample(DatasetConfig(**{**SMALL, "seed": 1}), sample).labels
     assert not np.allclose(a["deflection_mm"], c["deflection_mm"])
+
+
+def test_a_branch_sample_and_its_twin_share_the_foliage_layout() -> None:
+    """Part 1 of issue 13: one layout seed per foliage kind, whatever the distance, branches,
+    protocol or lighting; render and noise seeds stay each sample's own."""
+    samples = DatasetConfig().samples()
+    twin = SampleSpec("soft", "far", (), "indoor", "sun")
+    branch = SampleSpec("soft", "far", (0.0, 50.0), "indoor", "sun")
+    seeds = twin.seeds(0), branch.seeds(0)
+    assert seeds[0]["vegetation"] == seeds[1]["vegetation"] == twin.layout_seed(0)
+    assert seeds[0]["render"] != seeds[1]["render"] and seeds[0]["noise"] != seeds[1]["noise"]
+    by_kind: dict[str, set[str]] = {}
+    for s in samples:
+        by_kind.setdefault(s.foliage, set()).add(s.foliage_group(0))
+    assert all(len(g) == 1 for g in by_kind.values()) and len(by_kind) == 4
+    assert len({next(iter(g)) for g in by_kind.values()}) == 4  # kinds never share a layout
+    assert twin.layout_seed(1) != twin.layout_seed(0)
+
+
+@pytest.mark.slow
+def test_the_twin_differs_from_its_branch_sample_only_in_the_branches() -> None:
+    config = DatasetConfig(**{**SMALL, "branches": ((), (0.0,))})
+    twin, branch = (simulate_sample(config, s).vegetation for s in config.samples())
+    assert twin.contacts == branch.contacts and not twin.branches and branch.branches
+    meshes = [{p.name: p.mesh for p in v.parts} for v in (twin, branch)]
+    assert set(meshes[1]) - set(meshes[0]) == {"branches"}
+    for name, mesh in meshes[0].items():
+        assert np.array_equal(mesh.vertices, meshes[1][name].vertices)
 
 
 def test_sample_ids_are_unique_over_the_default_grid() -> None:

@@ -84,3 +84,24 @@ def test_a_tracking_only_table_is_scored_without_deflection() -> None:
     det = _detections(labels).drop(columns=["deflection_mm", "contact"]).iloc[1:]
     s = score_markers(det, labels)
     assert s["recall"] == pytest.approx(5 / 6) and "deflection_err_mm" not in s
+
+
+def test_a_twin_of_another_layout_gives_no_threshold() -> None:
+    """The threshold comes from the no-branch sample of the same foliage layout; a dataset
+    made before layouts were shared says its twin is other foliage."""
+    from bench.evaluate.score import OTHER_LAYOUT_TWIN, SAME_LAYOUT_TWIN, _none_twin
+
+    def record(branches: str, group: str | None) -> dict:
+        out = {"sample_id": f"soft-far-{branches}-indoor-sun"}
+        return out if group is None else {**out, "foliage_group": group}
+
+    for twin_group, sample_group, expected in (
+        ("soft@1", "soft@1", ("soft-far-none-indoor-sun", SAME_LAYOUT_TWIN)),
+        ("soft@2", "soft@1", (None, "")),
+        (None, None, ("soft-far-none-indoor-sun", OTHER_LAYOUT_TWIN)),
+    ):
+        twin, sample = record("none", twin_group), record("0", sample_group)
+        records = {r["sample_id"]: r for r in (twin, sample)}
+        assert _none_twin(sample, records) == expected
+    lone = record("0", "soft@1")
+    assert _none_twin(lone, {lone["sample_id"]: lone}) == (None, "")

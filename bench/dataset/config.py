@@ -105,11 +105,25 @@ class SampleSpec:
         return "-".join((*parts, self.lighting))
 
     def seeds(self, seed: int) -> dict[str, int]:
-        """The sample's own seeds (render jitter, vegetation layout, sensor noise), from the
-        dataset seed and the sample id: independent of which other samples run."""
+        """The sample's seeds: render jitter and sensor noise its own (from the dataset seed and
+        the sample id: independent of which other samples run), the vegetation's the layout
+        seed it shares with every sample of its foliage (:meth:`layout_seed`)."""
         sequence = np.random.SeedSequence(seed, spawn_key=(zlib.crc32(self.sample_id.encode()),))
         state = sequence.generate_state(3)
-        return {name: int(v) % 2**31 for name, v in zip(SEED_NAMES, state, strict=True)}
+        own = {name: int(v) % 2**31 for name, v in zip(SEED_NAMES, state, strict=True)}
+        return {**own, "vegetation": self.layout_seed(seed)}
+
+    def layout_seed(self, seed: int) -> int:
+        """The seed that places the strips, leaves and twigs: one per foliage kind and dataset
+        seed. As in the lab, one piece of foliage is sampled at every distance, under every
+        protocol and lighting, with and without branches, so a branch sample and its no-branch
+        twin differ only in the branches (SPEC 3 step 4's threshold comes from the twin)."""
+        key = (zlib.crc32(f"layout:{self.foliage}".encode()),)
+        return int(np.random.SeedSequence(seed, spawn_key=key).generate_state(1)[0]) % 2**31
+
+    def foliage_group(self, seed: int) -> str:
+        """The name of the foliage this sample shares with others: ``soft@<layout seed>``."""
+        return f"{self.foliage}@{self.layout_seed(seed)}"
 
 
 @dataclass(frozen=True)

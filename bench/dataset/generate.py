@@ -27,6 +27,14 @@ def _run_task(task: _SampleTask, _variant: str) -> dict:
     return run_sample(task.config, task.sample, task.out_dir)
 
 
+def foliage_groups(records: list[dict]) -> dict[str, list[str]]:
+    """{foliage group: its sample ids}: the samples that share one vegetation layout."""
+    groups: dict[str, list[str]] = {}
+    for r in records:
+        groups.setdefault(r["foliage_group"], []).append(r["sample_id"])
+    return groups
+
+
 def run_dataset(
     config: DatasetConfig,
     out_dir: Path,
@@ -87,6 +95,7 @@ def run_dataset(
         outputs=files,
         camera_profile=config.camera.name,
         samples=[r["sample_id"] for r in records],
+        foliage_groups=foliage_groups(records),
         skipped=len(samples) - len(todo),
         files=files,
         wall_s=wall_s,

@@ -93,7 +93,7 @@ def simulate_sample(config: DatasetConfig, sample: SampleSpec) -> SimulatedSampl
             sample.foliage,
             sample.distance,
             sample.branches_mm,
-            sample.seeds(config.seed)["vegetation"],
+            sample.layout_seed(config.seed),
         ),
         config.array,
     )
@@ -198,6 +198,8 @@ def run_sample(config: DatasetConfig, sample: SampleSpec, out_dir: Path) -> dict
         "lighting": sample.lighting,
         "seed": config.seed,
         "sample_seeds": sample.seeds(config.seed),
+        "layout_seed": sample.layout_seed(config.seed),  # shared by the foliage_group's samples
+        "foliage_group": sample.foliage_group(config.seed),
         "frames": n_written,
         "frames_step": config.frames_step,
         "exposure_ms": config.exposure_ms,

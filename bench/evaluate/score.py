@@ -159,13 +159,26 @@ def _array(record: dict) -> ArraySpec | None:
     return ArraySpec(**{**record["array"], "marker_ids": tuple(record["array"]["marker_ids"])})
 
 
-def _none_twin(record: dict) -> str | None:
-    """The id of the no-branch sample of the same foliage, distance, protocol and lighting."""
+#: ``threshold_source`` of a sample whose twin shares its foliage layout, and of one from a
+#: dataset made before layouts were shared (its twin is other foliage of the same kind).
+SAME_LAYOUT_TWIN = "none-sample twin"
+OTHER_LAYOUT_TWIN = "none-sample twin (other layout)"
+
+
+def _none_twin(record: dict, records: dict[str, dict]) -> tuple[str | None, str]:
+    """(id, threshold source) of the no-branch sample of the same foliage, distance, protocol
+    and lighting; no id where there is none, or where it records another foliage layout."""
     parts = record["sample_id"].split("-")
     if len(parts) < 3:  # not an id the dataset command makes: no twin
-        return None
+        return None, ""
     parts[2] = "none"
-    return "-".join(parts)
+    twin = records.get("-".join(parts))
+    if twin is None:
+        return None, ""
+    groups = (record.get("foliage_group"), twin.get("foliage_group"))
+    if None in groups:
+        return twin["sample_id"], OTHER_LAYOUT_TWIN
+    return (twin["sample_id"], SAME_LAYOUT_TWIN) if groups[0] == groups[1] else (None, "")
 
 
 @dataclass(frozen=True)
@@ -177,6 +190,7 @@ class _SampleTask:
     config: PipelineConfig
     out_dir: Path
     threshold: float | None
+    threshold_source: str  # where ``threshold`` came from (when it is not None)
     video_sha256: str
 
 
@@ -202,6 +216,7 @@ def _score_sample(task: _SampleTask, _context: None) -> tuple[dict, float | None
         "branches": "+".join(f"{b:g}" for b in record["branches_mm"]) or "none",
         "protocol": record["protocol"]["name"],
         "lighting": record["lighting"],
+        "foliage_group": record.get("foliage_group", ""),
         "true_gaps": json.dumps(record["branch_gaps"]),
     }
     out = task.out_dir / sample_id
@@ -226,9 +241,9 @@ def _score_sample(task: _SampleTask, _context: None) -> tuple[dict, float | None
     row = {
         **common,
         "threshold_mm": result["threshold_mm"],
-        "threshold_source": "none-sample twin"
+        "threshold_source": task.threshold_source
         if task.threshold is not None
-        else (result["threshold_source"]),
+        else result["threshold_source"],
         "estimated_gaps": json.dumps(estimated),
         "unseen_markers": json.dumps(result["unseen_markers"]),
         **branch_outcome(estimated, record["branch_gaps"]),
@@ -283,18 +298,23 @@ def score_dataset(
     with runner as pool:
         ran_on = pool.describe()
         for twins in (True, False):  # a sample's threshold is its twin's: twins first
-            tasks = [
-                _SampleTask(
-                    dataset / sample_id,
-                    record,
-                    config,
-                    out_dir,
-                    thresholds.get(_none_twin(record)) if config.threshold == "fixed" else None,
-                    verified.digests[f"{sample_id}/video.mp4"],
+            tasks = []
+            for sample_id, record in sorted(records.items()):
+                if (record["branches_mm"] == []) != twins:
+                    continue
+                twin, source = _none_twin(record, records)
+                fixed = config.threshold == "fixed" and twin is not None
+                tasks.append(
+                    _SampleTask(
+                        dataset / sample_id,
+                        record,
+                        config,
+                        out_dir,
+                        thresholds.get(twin) if fixed else None,
+                        source,
+                        verified.digests[f"{sample_id}/video.mp4"],
+                    )
                 )
-                for sample_id, record in sorted(records.items())
-                if (record["branches_mm"] == []) == twins
-            ]
             desc = f"score {config.name}" + ("" if twins else " (branches)")
             for row, threshold in pool.map(_score_sample, tasks, desc=desc, unit="sample"):
                 rows.append(row)
