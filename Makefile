@@ -3,7 +3,7 @@ VENV ?= .venv
 PYTHON ?= python3
 BIN := $(VENV)/bin
 
-.PHONY: setup llvm study quick test test-fast bench bench-pipeline compare lint
+.PHONY: setup llvm study quick test test-fast bench bench-pipeline compare ladder indoor lint
 
 setup: $(VENV)/.installed llvm
 
@@ -60,6 +60,27 @@ compare: setup
 	  --out $(COMPARE_DATASET)
 	$(BIN)/whiskerbench compare $(COMPARE_DATASET) --pipelines $(COMPARE_PIPELINES) \
 	  --out results/compare/default
+
+# The fidelity ladder (issue 13): each rendering choice against a path-traced full-frame
+# reference, for study cells near 95 % and a labeled video; resumable, ~40 min on 2 cores.
+LADDER_OPTIONS ?=
+
+ladder: setup
+	$(BIN)/whiskerbench ladder --out results/ladder $(LADDER_OPTIONS)
+
+# The default grid's 84 indoor samples (issue 13 part 5): prototype camera, every frame (about
+# 82,600), then the `paper` preset; the small results go to results/indoor/, the videos stay in
+# data/. Hours on 2 cores; reruns resume where they stopped.
+INDOOR_DATASET ?= data/indoor
+
+indoor: setup
+	$(BIN)/whiskerbench dataset --protocol indoor --workers 2 --out $(INDOOR_DATASET)
+	$(BIN)/whiskerbench score $(INDOOR_DATASET) --pipeline paper --workers 2
+	mkdir -p results/indoor
+	cp $(INDOOR_DATASET)/scores/paper/samples.csv $(INDOOR_DATASET)/scores/paper/grid-indoor-sun.png \
+	  results/indoor/
+	cp $(INDOOR_DATASET)/scores/paper/manifest.json results/indoor/score-manifest.json
+	cp $(INDOOR_DATASET)/manifest.json results/indoor/dataset-manifest.json
 
 bench-pipeline: setup
 	$(BIN)/whiskerbench bench pipeline --out results/compare/bench

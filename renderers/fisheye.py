@@ -7,11 +7,16 @@ code the labels and the pipeline use), jittered within each pixel, and are evalu
 * the sky: by default exactly, as albedo x sky irradiance E(n) / pi from the traced hit's
   normal and albedo (:mod:`renderers.sky_irradiance`; valid where nothing occludes the sky,
   as for the study's lone marker), or with Mitsuba's ``direct`` integrator (Monte Carlo, correct
-  with occluders) over the same sky as an environment map;
+  with occluders) over the same sky as an environment map, or with its ``path`` integrator
+  (the same, plus sky light reflected between surfaces over ``path_depth`` bounces). For the
+  study's lone marker, a print on its flat carrier, nothing else is there to occlude or reflect
+  the sky, so all three agree in expectation: "path" is the fidelity ladder's reference, which
+  checks that, not a change of the image;
 * the sun, a delta light: evaluated exactly per sample as BSDF x irradiance x visibility, so it
   carries no Monte Carlo noise. Keeping it per sample lets a leaf canopy's moving shadow be
   applied afterwards with one shadow ray per sample (:func:`canopy_visibility`) instead of a
-  re-render per image.
+  re-render per image. The sun is direct only in every sky mode: sunlight bounced off anything
+  (the holder, were it in the scene) is left out.
 
 Output is linear RGB radiance, float32. Pixels outside the image circle are black.
 """
@@ -26,6 +31,7 @@ import mitsuba as mi
 import numpy as np
 
 from renderers.fisheye_trace import CHUNK_RAYS, BlockTracer, pad_rows
+from renderers.frame_sampling import check_light_paths
 from renderers.mitsuba_scene import CanopyScene, MarkerScene
 from renderers.variant import jit_variant_active
 from renderers.window import Window
@@ -54,7 +60,7 @@ class RenderedWindow:
         return self.sky_rgb[None] + sun_visibility[..., None] * self.sun_rgb[None]
 
 
-SKY_METHODS = ("irradiance", "integrator")
+SKY_METHODS = ("irradiance", "integrator", "path")
 
 
 class FisheyeRenderer:
@@ -68,10 +74,12 @@ class FisheyeRenderer:
         shadow_spp: int = 4,
         sky: str = "irradiance",
         adaptive: bool = True,
+        path_depth: int = 3,
     ) -> None:
         """``sky``: ``"irradiance"`` (exact and noise-free where nothing occludes the sky, as for
-        the study's lone marker; :mod:`renderers.sky_irradiance`) or ``"integrator"`` (Mitsuba's
-        ``direct`` integrator, Monte Carlo, correct with occluders).
+        the study's lone marker; :mod:`renderers.sky_irradiance`), ``"integrator"`` (Mitsuba's
+        ``direct`` integrator, Monte Carlo, correct with occluders) or ``"path"`` (Mitsuba's
+        ``path`` integrator with ``path_depth`` indirect bounces: interreflected sky light too).
 
         ``adaptive`` (with the noise-free ``irradiance`` sky, a square spp of even side and,
         under a leaf canopy, ``shadow_spp`` at most spp / 4):
@@ -97,7 +105,14 @@ class FisheyeRenderer:
             # the canopy's shadow rays start from first-pass hits
             and (scene.lighting.canopy is None or shadow_spp <= spp // 4)
         )
-        integrator = mi.load_dict({"type": "direct"}) if sky == "integrator" else None
+        integrator = None
+        if sky == "integrator":
+            integrator = mi.load_dict({"type": "direct"})
+        elif sky == "path":
+            check_light_paths("path", path_depth)
+            # max_depth 2 is direct light only; Russian roulette off (it starts at rr_depth)
+            depth = path_depth + 2
+            integrator = mi.load_dict({"type": "path", "max_depth": depth, "rr_depth": depth})
         self._tracer = BlockTracer(camera, scene.scene, scene.lighting, integrator)
 
     def render(self, window: Window, seed: int) -> RenderedWindow:

@@ -18,16 +18,29 @@ from scenes.camera import FisheyeCamera
 from scenes.conventions import marker_corners_marker
 from scenes.validation import FieldError
 
+#: Light transport of a frame (:class:`renderers.frames.FrameRenderer`): direct light only, or
+#: paths with ``path_depth`` indirect bounces.
+INTEGRATORS = ("direct", "path")
+MAX_PATH_DEPTH = 8
+
 
 @dataclass(frozen=True)
 class FrameSampling:
-    """How many samples where, and over how much time."""
+    """How many samples where, over how much time, and which light paths.
+
+    ``integrator``: ``"direct"`` (sun and unoccluded sky at the first hit) or ``"path"`` (sun
+    at every vertex of ``path_depth`` cosine-sampled bounces, the sky occluded along them, the
+    unoccluded sky at the last); see :mod:`renderers.frames`. ``path_depth`` is used only by
+    ``"path"``.
+    """
 
     marker_spp: int = 4
     background_spp: int = 1
     subframes: int = 4
     full_frame: bool = False
     margin_px: int = 16  # > half the detector's largest threshold window (23 px)
+    integrator: str = "direct"
+    path_depth: int = 3
 
     def __post_init__(self) -> None:
         for name in ("marker_spp", "background_spp", "subframes"):
@@ -35,6 +48,16 @@ class FrameSampling:
                 raise FieldError(name, f"{getattr(self, name)!r}: must be an integer >= 1")
         if self.margin_px < 0:
             raise FieldError("margin_px", f"{self.margin_px}: must be >= 0")
+        check_light_paths(self.integrator, self.path_depth)
+
+
+def check_light_paths(integrator: str, path_depth: int) -> None:
+    """FieldError unless ``integrator`` is one of :data:`INTEGRATORS` and ``path_depth`` an
+    integer 1..:data:`MAX_PATH_DEPTH` (both renderers take these two)."""
+    if integrator not in INTEGRATORS:
+        raise FieldError("integrator", f"{integrator!r}: choose from {INTEGRATORS}")
+    if type(path_depth) is not int or not 1 <= path_depth <= MAX_PATH_DEPTH:  # bool is no depth
+        raise FieldError("path_depth", f"{path_depth!r}: must be an integer 1..{MAX_PATH_DEPTH}")
 
 
 def marker_region(

@@ -18,13 +18,20 @@ What a frame needs, and only that:
   rebuilt; the array's offset moves the ray origins instead), plus a leaf canopy for shadows.
 * **Time.** Each pixel's samples are spread over ``subframes`` instants within the exposure
   (stratified), each rendered with the array and its deflections at that instant: motion blur.
-* **Light paths.** Direct light only. The sun is a delta light evaluated exactly with shadow
-  rays through all three scenes (canopy rays jittered over the solar disk: soft penumbrae). The
-  sky term is the exact unoccluded irradiance ``albedo * E(n) / pi``
-  (:mod:`renderers.sky_irradiance`). That is exact for the markers, whose faces look back at the
-  camera, away from the vegetation in front of the array (nothing occludes their sky but the
-  camera body); on the foliage, which nothing downstream measures, it ignores mutual
-  occlusion between leaves.
+* **Light paths.** ``integrator="direct"`` (the default): direct light only. The sun is a delta
+  light evaluated exactly with shadow rays through all three scenes (canopy rays jittered over
+  the solar disk: soft penumbrae). The sky term is the exact unoccluded irradiance
+  ``albedo * E(n) / pi`` (:mod:`renderers.sky_irradiance`). That is exact for the markers, whose
+  faces look back at the camera, away from the vegetation in front of the array (nothing
+  occludes their sky but the camera body); on the foliage, which nothing downstream measures,
+  it ignores mutual occlusion between leaves.
+  ``integrator="path"`` measures what that costs: from each hit a path continues along
+  ``path_depth`` cosine-sampled bounces (Lambertian: throughput x albedo) through the array and
+  the vegetation. Each vertex adds the exact sun; a bounce that escapes both scenes adds the
+  sky in its direction, so leaves, branches and the array occlude the sky and light each other;
+  the last vertex adds the unoccluded sky term as above. "direct" is this with zero bounces.
+  The canopy casts shadows only (it is out of view): bounces do not see it. Bounce directions
+  are seeded per sample and fixed for all its frames, like the camera rays.
 
 Output: linear RGB radiance (H, W, 3) float32 over the region, 1.0 = full scale of the sensor at
 exposure 1, for the camera twin (:mod:`renderers.camera_twin`; a grey sensor takes its Rec. 709
@@ -59,6 +66,7 @@ from renderers.camera_twin import (
     pixel_gain,
     sensor_images,
 )
+from renderers.drjit_ops import DrJitOps
 from renderers.frame_rays import RayPlan, ray_plan
 from renderers.frame_sampling import FrameSampling, marker_region
 from renderers.mitsuba_scene import CanopyScene
@@ -86,6 +94,18 @@ class _Batch:
     pixel: mi.UInt32
     sky_escape: mi.Color3f  # radiance of the sky seen by rays that hit nothing
     to_sun: mi.Vector3f | None  # per ray, jittered over the solar disk (canopy shadows)
+    bounce_seed: int  # seeds the bounce directions of "path"
+
+
+@dataclass
+class _Vertex:
+    """Where rays hit the nearer of the array and the vegetation, and its surface there."""
+
+    hit: mi.Bool
+    p_cam: mi.Point3f
+    normal: mi.Vector3f  # towards the ray's origin on front faces; +z elsewhere (unused)
+    albedo: mi.Color3f  # 0 on back faces (one-sided Lambertian) and where nothing is hit
+    sun_f: mi.Color3f  # BSDF x sun irradiance, 0 likewise
 
 
 # -- rendering -------------------------------------------------------------------------------
@@ -129,7 +149,10 @@ class FrameRenderer:
             cone = (np.asarray(sun.to_sun_cam), math.radians(sun.angular_radius_deg))
         plans, self._count = ray_plan(camera, self.region, self.zone, sampling, cone, seed)
         self.inside = self._count > 0
-        self._batches = [self._batch(plan) for plan in plans]
+        # child 2 of the seed: ray_plan draws from children 0 and 1
+        bounce_seeds = np.random.SeedSequence(seed).spawn(3)[2].generate_state(len(plans))
+        self._batches = [self._batch(p, int(s)) for p, s in zip(plans, bounce_seeds, strict=True)]
+        self._depth = sampling.path_depth if sampling.integrator == "path" else 0
         self._setup_shading()
         # Per pixel: its sample count (1 where it has none: its sum is 0) and gain, read by
         # each channel of the interleaved (H, W, 3) sum.
@@ -142,7 +165,7 @@ class FrameRenderer:
     def rays_per_frame(self) -> int:
         return int(self._count.sum())
 
-    def _batch(self, plan: RayPlan) -> _Batch:
+    def _batch(self, plan: RayPlan, bounce_seed: int) -> _Batch:
         sky = self.lighting.sky
         escape = sky.radiance(plan.dirs.astype(float))[:, None] * np.asarray(sky.color)
         return _Batch(
@@ -150,6 +173,7 @@ class FrameRenderer:
             mi.UInt32(plan.pixel),
             mi.Color3f(escape.T.astype(np.float32)),
             None if plan.to_sun is None else mi.Vector3f(plan.to_sun.T),
+            bounce_seed,
         )
 
     def _setup_shading(self) -> None:
@@ -162,6 +186,7 @@ class FrameRenderer:
             wrap_mode=dr.WrapMode.Repeat,
         )
         self._sky_rgb = mi.Color3f(sky.color)
+        self._ops = DrJitOps()  # the sky's radiance along bounces, as kernel code
         self._sun = None
         if sun is not None:
             self._sun = (
@@ -198,39 +223,68 @@ class FrameRenderer:
         return total.numpy().reshape(*self.region.shape, 3)
 
     def _shade(self, batch: _Batch, shift: mi.Vector3f) -> mi.Color3f:
-        """RGB radiance of each ray: nearest of the array and the vegetation, lit by sky and
-        sun.
+        """RGB radiance of each ray: its first hit lit by sun and sky, plus, for "path", the
+        light its bounces gather (one kernel: the loop over the few bounces is unrolled)."""
+        v = self._nearest(mi.Point3f(0.0), batch.dirs, shift, True)
+        rgb = dr.select(v.hit, self._light(v, shift, batch, self._depth == 0), batch.sky_escape)
+        if self._depth == 0:
+            return rgb
+        n = dr.width(batch.pixel)
+        rng = mi.PCG32(n, batch.bounce_seed, dr.arange(mi.UInt64, n))
+        beta = mi.Color3f(1.0)  # path throughput
+        for bounce in range(1, self._depth + 1):
+            active = v.hit & (dr.max(v.albedo) > 0)
+            beta *= v.albedo  # Lambertian, cosine-sampled: f cos / pdf = albedo
+            local = mi.warp.square_to_cosine_hemisphere(
+                mi.Point2f(rng.next_float32(), rng.next_float32())
+            )
+            d = mi.Frame3f(v.normal).to_world(local)
+            v = self._nearest(v.p_cam + v.normal * SHADOW_EPS_MM, d, shift, active)
+            sky = self.lighting.sky.radiance_xyz(d.x, d.y, d.z, self._ops) * self._sky_rgb
+            light = dr.select(v.hit, self._light(v, shift, batch, bounce == self._depth), sky)
+            rgb += dr.select(active, beta * light, 0.0)
+        return rgb
+
+    def _nearest(self, origin_cam, dirs, shift: mi.Vector3f, active) -> _Vertex:
+        """The nearer hit of the array and the vegetation along rays from ``origin_cam``.
 
         The vegetation is searched only up to the array's hit (a shorter ray prunes the search),
-        surfaces are shaded only where they are the nearest hit, and shadow rays leave only
-        points that face the sun: work masked off costs little in a vectorized kernel.
+        surfaces are shaded only where they are the nearest hit.
         """
-        ray_cam = mi.Ray3f(mi.Point3f(0.0), batch.dirs)
-        si_a = self.array.scene.ray_intersect(ray_cam)
-        ray_veg = mi.Ray3f(mi.Ray3f(mi.Point3f(shift), batch.dirs), si_a.t)
-        si_v = self.vegetation.ray_intersect(ray_veg)
+        ray_cam = mi.Ray3f(origin_cam, dirs)
+        si_a = self.array.scene.ray_intersect(ray_cam, active=active)
+        ray_veg = mi.Ray3f(mi.Ray3f(origin_cam + shift, dirs), si_a.t)
+        si_v = self.vegetation.ray_intersect(ray_veg, active=active)
         near_a = si_a.is_valid() & ~si_v.is_valid()
         parts = [
-            self._surface(si, ray_cam, active)
-            for si, active in ((si_a, near_a), (si_v, si_v.is_valid()))
+            self._surface(si, ray_cam, on) for si, on in ((si_a, near_a), (si_v, si_v.is_valid()))
         ]
-        normal, sky_albedo, sun_f = (
-            dr.select(near_a, a, v) for a, v in zip(parts[0], parts[1], strict=True)
+        normal, albedo, sun_f = (
+            dr.select(near_a, a, b) for a, b in zip(parts[0], parts[1], strict=True)
         )
         p_cam = dr.select(near_a, si_a.p, si_v.p - shift)
-        hit = si_a.is_valid() | si_v.is_valid()
-        # E(n) from the table over (azimuth u, polar v); clamp v so it never wraps at the poles
-        u = dr.atan2(normal.y, normal.x) / (2 * math.pi)
-        half = 0.5 / self._rows
-        v = dr.clip(dr.acos(dr.clip(normal.z, -1.0, 1.0)) / math.pi, half, 1.0 - half)
-        rgb = sky_albedo * (self._irradiance.eval(mi.Point2f(u, v))[0] / math.pi)
+        return _Vertex(si_a.is_valid() | si_v.is_valid(), p_cam, normal, albedo, sun_f)
+
+    def _light(self, v: _Vertex, shift: mi.Vector3f, batch: _Batch, sky: bool) -> mi.Color3f:
+        """Light a vertex sends back along its ray: the sun, and with ``sky`` the unoccluded
+        sky (shadow rays leave only points that face the sun: work masked off costs little in a
+        vectorized kernel)."""
+        rgb = mi.Color3f(0.0)
+        if sky:
+            # E(n) from the table over (azimuth u, polar v); clamp v so it never wraps at poles
+            n = v.normal
+            u = dr.atan2(n.y, n.x) / (2 * math.pi)
+            half = 0.5 / self._rows
+            t = dr.clip(dr.acos(dr.clip(n.z, -1.0, 1.0)) / math.pi, half, 1.0 - half)
+            irradiance = self._irradiance.eval(mi.Point2f(u, t))[0]
+            rgb = (v.albedo * self._sky_rgb) * (irradiance / math.pi)
         if self._sun is not None:
-            lit = hit & (dr.sum(sun_f) > 0)
-            rgb += sun_f * self._sun_visible(p_cam, normal, shift, batch, lit)
-        return dr.select(hit, rgb, batch.sky_escape)
+            lit = v.hit & (dr.sum(v.sun_f) > 0)
+            rgb += v.sun_f * self._sun_visible(v.p_cam, v.normal, shift, batch, lit)
+        return rgb
 
     def _surface(self, si: mi.SurfaceInteraction3f, ray: mi.Ray3f, active: mi.Bool):
-        """(normal, albedo x sky colour, BSDF x sun) where ``active``; zero on back faces."""
+        """(normal, albedo, BSDF x sun) where ``active``; zero on back faces."""
         front = active & (dr.dot(si.sh_frame.n, -ray.d) > 0)
         bsdf = si.bsdf()
         albedo = bsdf.eval_diffuse_reflectance(si, front)
@@ -239,7 +293,7 @@ class FrameRenderer:
             to_sun, sun_rgb = self._sun
             sun_f = bsdf.eval(mi.BSDFContext(), si, si.to_local(to_sun), front) * sun_rgb
         normal = dr.select(front, si.sh_frame.n, mi.Vector3f(0.0, 0.0, 1.0))
-        return normal, dr.select(front, albedo * self._sky_rgb, 0.0), dr.select(front, sun_f, 0.0)
+        return normal, dr.select(front, albedo, 0.0), dr.select(front, sun_f, 0.0)
 
     def _sun_visible(self, p_cam, normal, shift, batch: _Batch, active) -> mi.Float:
         """1 where the sun reaches the point past the array, the vegetation and the canopy."""
@@ -252,6 +306,49 @@ class FrameRenderer:
                 mi.Ray3f(origin + shift, batch.to_sun), active & ~blocked
             )
         return dr.select(blocked, 0.0, 1.0)
+
+
+class TwinRecorder:
+    """A region's radiance recorded through one camera twin as the camera's 8-bit grey frame,
+    with the seconds spent in the optics and in the sensor.
+
+    The optics run once over the region; the band's sensor noise comes from its own stream, so a
+    band frame and a full frame of the same sample hold identical pixels wherever their optical
+    images agree (the band starts on the stream's block grid). Kept apart from the renderer so
+    that one render can be recorded through several twins (the fidelity ladder's stage rungs).
+    """
+
+    def __init__(
+        self, profile: CameraProfile, region: Window, band: Window, exposure: float, noise_seed: int
+    ) -> None:
+        """``exposure``: linear radiance to sensor full scale, the lighting's factor included."""
+        self.profile, self.region, self.band, self.exposure = profile, region, band, exposure
+        self.rng_band, self.rng_rest = (
+            np.random.default_rng(s) for s in np.random.SeedSequence(noise_seed).spawn(2)
+        )
+        self.optics_s = self.sensor_s = 0.0
+
+    def _sensor(self, irradiance: np.ndarray, window: Window, rng: np.random.Generator):
+        origin = (window.x0, window.y0)
+        return sensor_images(irradiance, self.profile, rng, 1, origin, self.exposure)[0]
+
+    def record(self, radiance: np.ndarray) -> np.ndarray:
+        """The frame (H, W) of the region's radiance (:meth:`FrameRecorder.radiance`): black
+        outside the region."""
+        t0 = time.perf_counter()
+        lens, region, band = self.profile.lens, self.region, self.band
+        irradiance = optical_image(radiance, self.profile, (region.x0, region.y0), _LENS_STAGES)
+        t1 = time.perf_counter()
+        image = np.zeros((lens.height_px, lens.width_px), np.uint8)
+        if region != band:
+            image[region.y0 : region.y0 + region.height, region.x0 : region.x0 + region.width] = (
+                self._sensor(irradiance, region, self.rng_rest)
+            )
+        rows = slice(band.y0 - region.y0, band.y0 - region.y0 + band.height)
+        image[band.y0 : band.y0 + band.height] = self._sensor(irradiance[rows], band, self.rng_band)
+        self.optics_s += t1 - t0
+        self.sensor_s += time.perf_counter() - t1
+        return image
 
 
 class FrameRecorder:
@@ -289,42 +386,30 @@ class FrameRecorder:
         )
         self.angles_rad, self.offsets_mm = angles_rad, offsets_mm
         self.exposure = exposure * lighting.exposure
-        self.rng_band, self.rng_rest = (
-            np.random.default_rng(s) for s in np.random.SeedSequence(noise_seed).spawn(2)
-        )
-        self.render_s = self.optics_s = self.sensor_s = 0.0
+        renderer = self.renderer
+        self.twin = TwinRecorder(profile, renderer.region, renderer.band, self.exposure, noise_seed)
+        self.render_s = 0.0
+
+    @property
+    def optics_s(self) -> float:
+        return self.twin.optics_s
+
+    @property
+    def sensor_s(self) -> float:
+        return self.twin.sensor_s
+
+    def reset_timers(self) -> None:
+        self.render_s = self.twin.optics_s = self.twin.sensor_s = 0.0
 
     def radiance(self, f: int) -> np.ndarray:
         """Clean linear RGB radiance of frame ``f`` over the renderer's region, times the
         twin's per-pixel optics (:data:`~renderers.camera_twin.PIXEL_GAIN_STAGES`)."""
+        t0 = time.perf_counter()
         k = self.renderer.sampling.subframes
-        return self.renderer.render(self.angles_rad[f, :k], self.offsets_mm[f])
-
-    def _record(self, irradiance: np.ndarray, window: Window, rng: np.random.Generator):
-        origin = (window.x0, window.y0)
-        return sensor_images(irradiance, self.profile, rng, 1, origin, self.exposure)[0]
+        radiance = self.renderer.render(self.angles_rad[f, :k], self.offsets_mm[f])
+        self.render_s += time.perf_counter() - t0
+        return radiance
 
     def frame(self, f: int) -> np.ndarray:
-        """The camera's 8-bit grey frame ``f`` (H, W): black outside the rendered region.
-
-        The optics run once over the region; the band's sensor noise comes from its own
-        stream, so a band frame and a full frame of the same sample hold identical pixels
-        wherever their optical images agree (the band starts on the stream's block grid).
-        """
-        t0 = time.perf_counter()
-        radiance = self.radiance(f)
-        t1 = time.perf_counter()
-        lens, region, band = self.profile.lens, self.renderer.region, self.renderer.band
-        irradiance = optical_image(radiance, self.profile, (region.x0, region.y0), _LENS_STAGES)
-        t2 = time.perf_counter()
-        image = np.zeros((lens.height_px, lens.width_px), np.uint8)
-        if region != band:
-            image[region.y0 : region.y0 + region.height, region.x0 : region.x0 + region.width] = (
-                self._record(irradiance, region, self.rng_rest)
-            )
-        rows = slice(band.y0 - region.y0, band.y0 - region.y0 + band.height)
-        image[band.y0 : band.y0 + band.height] = self._record(irradiance[rows], band, self.rng_band)
-        self.render_s += t1 - t0
-        self.optics_s += t2 - t1
-        self.sensor_s += time.perf_counter() - t2
-        return image
+        """The camera's 8-bit grey frame ``f`` (H, W): black outside the rendered region."""
+        return self.twin.record(self.radiance(f))

@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from renderers.frame_sampling import check_light_paths
 from renderers.window import Window
 from scenes.camera import FisheyeCamera
 from scenes.lighting import get_lighting
@@ -29,12 +30,27 @@ SCENE_SIZE_MM = 10.0
 
 
 class MarkerRenderer:
-    """Crops of one marker through one lens, ``spp`` samples per pixel, any lighting preset."""
+    """Crops of one marker through one lens, ``spp`` samples per pixel, any lighting preset.
 
-    def __init__(self, lens: FisheyeCamera, dictionary: str, marker_id: int, spp: int = 16):
+    ``integrator``: ``"direct"`` (the exact unoccluded sky, noise-free) or ``"path"`` (Mitsuba's
+    path tracer over the sky with ``path_depth`` indirect bounces, the fidelity ladder's
+    reference; :class:`renderers.fisheye.FisheyeRenderer` says what it adds for a lone marker).
+    """
+
+    def __init__(
+        self,
+        lens: FisheyeCamera,
+        dictionary: str,
+        marker_id: int,
+        spp: int = 16,
+        integrator: str = "direct",
+        path_depth: int = 3,
+    ):
+        check_light_paths(integrator, path_depth)
         self.lens = lens
         self.marker = MarkerSpec(dictionary, marker_id, SCENE_SIZE_MM)
         self.spp = spp
+        self.integrator, self.path_depth = integrator, path_depth
         self._loaded: dict[str, tuple[FisheyeRenderer, CanopyScene | None]] = {}
 
     def fisheye(self, lighting: str) -> FisheyeRenderer:
@@ -49,7 +65,11 @@ class MarkerRenderer:
             preset = get_lighting(lighting)
             scene = MarkerScene(self.marker, preset)
             canopy = CanopyScene(preset) if preset.canopy else None
-            self._loaded[lighting] = (FisheyeRenderer(self.lens, scene, spp=self.spp), canopy)
+            sky = "path" if self.integrator == "path" else "irradiance"
+            renderer = FisheyeRenderer(
+                self.lens, scene, spp=self.spp, sky=sky, path_depth=self.path_depth
+            )
+            self._loaded[lighting] = (renderer, canopy)
         return self._loaded[lighting]
 
     def crop(

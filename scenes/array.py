@@ -30,6 +30,7 @@ import trimesh
 
 from scenes.conventions import make_T
 from scenes.marker import MarkerSpec, carrier_mesh, print_mesh
+from scenes.rod_materials import COUPLING_LOSS_FACTOR, ROD_DENSITY_KG_M3, ROD_MODULUS_MPA
 from scenes.validation import FieldError
 
 FRAME_PLATE_HEIGHT_MM = 24.0  # the arc plate that carries the couplings, seen behind the markers
@@ -55,8 +56,10 @@ class ArraySpec:
     marker_size_mm: float = 13.2
     dictionary: str = "DICT_4X4_50"
     marker_ids: tuple[int, ...] = field(default_factory=lambda: tuple(range(13)))
-    #: Young's modulus of the rod for its optional series bending compliance; None = rigid rod.
-    rod_modulus_MPa: float | None = None
+    #: Young's modulus of the rod (its bending in series with the coupling); None = rigid rod.
+    rod_modulus_MPa: float | None = ROD_MODULUS_MPA
+    rod_density_kg_m3: float = ROD_DENSITY_KG_M3  # the whisker's inertia (scenes.dynamics)
+    coupling_loss_factor: float = COUPLING_LOSS_FACTOR  # the coupling's damping (scenes.dynamics)
 
     def __post_init__(self) -> None:
         positive = (
@@ -66,6 +69,7 @@ class ArraySpec:
             "spring_Nmm_per_rad",
             "marker_offset_mm",
             "marker_size_mm",
+            "rod_density_kg_m3",
         )
         for name in positive:
             if not getattr(self, name) > 0:
@@ -80,6 +84,12 @@ class ArraySpec:
             raise ArraySpecError("marker_offset_mm", "must be smaller than frame_radius_mm")
         if self.rod_modulus_MPa is not None and not self.rod_modulus_MPa > 0:
             raise ArraySpecError("rod_modulus_MPa", "must be > 0 or None")
+        if not 0 <= self.coupling_loss_factor < 2:
+            raise ArraySpecError(
+                "coupling_loss_factor",
+                f"must be in [0, 2) (damping ratio eta / 2 below 1), "
+                f"got {self.coupling_loss_factor}",
+            )
         for i in self.marker_ids:
             self.marker_spec(i)  # validates dictionary and id range
 

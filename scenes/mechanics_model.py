@@ -16,6 +16,7 @@ import numpy as np
 
 from scenes.array import ArraySpec
 from scenes.obstacles import CompliantContact, RigidCylinder
+from scenes.rod_materials import ROD_ON_WOOD_FRICTION
 
 
 @dataclass(frozen=True)
@@ -48,6 +49,7 @@ class MechanicsModel:
     length: float
     k: float
     inv_3ei: float  # 1 / (3 EI), 0 for a rigid rod
+    branch_friction: float  # Coulomb coefficient, rod on branch
     foliage: FoliageArrays
     branches: BranchArrays
 
@@ -123,8 +125,14 @@ def check_pivots_clear(model: MechanicsModel, offsets: np.ndarray) -> None:
 
 
 def build_model(
-    spec: ArraySpec, branches: Sequence[RigidCylinder], foliage: Sequence[CompliantContact]
+    spec: ArraySpec,
+    branches: Sequence[RigidCylinder],
+    foliage: Sequence[CompliantContact],
+    branch_friction: float = ROD_ON_WOOD_FRICTION,
 ) -> MechanicsModel:
+    if not isinstance(spec, ArraySpec):
+        raise ValueError(f"spec: expected ArraySpec, got {type(spec).__name__}")
+    check_finite("branch_friction", float(branch_friction), 0.0, strict=False)
     psi = spec.headings_rad
     ei = spec.rod_bending_EI_Nmm2
     return MechanicsModel(
@@ -133,6 +141,7 @@ def build_model(
         length=float(spec.whisker_length_mm),
         k=float(spec.spring_Nmm_per_rad),
         inv_3ei=0.0 if ei is None else 1.0 / (3.0 * ei),
+        branch_friction=float(branch_friction),
         foliage=_foliage_arrays(foliage),
         branches=_branch_arrays(branches, spec.whisker_diameter_mm / 2),
     )

@@ -17,65 +17,89 @@ Foliage forces (all foliage is a cantilever that slips off the whisker rod)
     (the push splits into a normal part and a part along the strip or leaf that friction must
     carry). So the force peaks at F_max = 2 EI mu / h^2, reached at a push of
     give_way = F_max / k = (2/3) h mu; beyond it the contact slides towards the free end and the
-    force falls: we model that as giving way at once. mu = ``SLIP_FRICTION`` = 0.5 (assumed
-    typical for paper, leaves and bark on polyester), slip angle atan(0.5) = 26.6 deg.
+    force falls: we model that as giving way at once. mu is the rod's friction on the foliage
+    (:mod:`scenes.foliage_materials`, from :mod:`scenes.rod_materials`): 0.4 on paper, 0.35 on
+    bark, 0.3 on leaves (slip angles 21.8, 19.3, 16.7 deg).
 
-Paper strips ("soft" 80 g/m2, "stiff" 160 g/m2)
-    Typical values: calliper 0.10 mm (80 g/m2 office paper) and 0.19 mm (160 g/m2 card);
-    in-plane Young's modulus of paper 2-8 GPa, E = 4 GPa taken. Bending stiffness per width
-    D = E t^3 / 12: 0.333 N mm (soft) and 2.286 N mm (stiff). A strip of width w = 12 mm has
-    EI = D w = 4.00 and 27.4 N mm^2. The strips are cut from a sheet that stays whole above
+Paper strips ("soft" 80 g/m2, "stiff" 160 g/m2; numbers and sources in
+:mod:`scenes.foliage_materials`)
+    Calliper 0.10 mm and 0.19 mm, in-plane Young's modulus E = 2.92 GPa. Bending stiffness per
+    width D = E t^3 / 12: 0.243 N mm (soft) and 1.669 N mm (stiff). A strip of width w = 12 mm
+    has EI = D w = 2.92 and 20.0 N mm^2. The strips are cut from a sheet that stays whole above
     y = -h, h = 35 mm above the array plane, so each strip is a cantilever clamped there and
     loaded at y = 0 (the strip twists to meet the rod with its face, so its edgewise stiffness
-    never engages): F_max = 2 EI mu / h^2 = 3.27 mN (soft) and 22.4 mN (stiff), k = 2.80e-4 and
-    1.92e-3 N/mm, give_way = 11.7 mm for both. At the far distance the central whisker meets the
-    strips 95 mm from its coupling: one soft strip gives 0.31 N mm, 0.054 rad, 0.44 mm of marker
-    travel (about 0.9 mm when it loads two strips at once: strips are 14 mm apart and each holds
-    for 11.7 mm), one stiff strip 2.1 N mm, 0.37 rad, 2.9 mm; a branch imposes its displacement
-    and gives several mm.
+    never engages): F_max = 2 EI mu / h^2 = 1.91 mN (soft) and 13.1 mN (stiff), k = 2.04e-4 and
+    1.40e-3 N/mm, give_way = 9.33 mm for both. At the far distance the central whisker meets the
+    strips 95 mm from its coupling: one soft strip gives 0.18 N mm, 0.032 rad, 0.25 mm of marker
+    travel, one stiff strip 1.24 N mm, 0.22 rad, 1.7 mm; a branch imposes its displacement and
+    gives several mm.
 
-Natural foliage ("sparse": Cornus mas, "dense": Tilia tomentosa)
-    Twigs are young shoots (E = 1 GPa assumed, diameter 1.1 / 1.4 mm: EI = E pi d^4 / 64 = 71.9 /
+Natural foliage ("sparse": Cornus mas, "dense": Tilia tomentosa; :mod:`scenes.foliage_materials`)
+    Twigs are young shoots (E = 1 GPa, diameter 1.1 / 1.4 mm: EI = E pi d^4 / 64 = 71.9 /
     189 N mm^2) loaded at their distance from the twig's base. Leaves are blades on petioles
     loaded at their distance from the blade's base, with EI = D * 45 mm of loaded blade, D from a
-    lamina of E = 100 MPa (assumed) and t = 0.2 / 0.3 mm: 3.0 / 10.1 N mm^2. The parent stem,
-    the petiole and the twig flex in series, so levers count as at least 80 mm (twigs) and 25 mm
-    (leaves): F_max is at most 11 / 29 mN for twigs and 4.8 / 16 mN for leaves, with medians
-    near 6 / 16 mN and 3 / 5 mN. The dense kind has more, larger, stiffer leaves and stiffer
-    twigs.
+    lamina of E = 100 MPa and t = 0.2 / 0.3 mm: 3.0 / 10.1 N mm^2. The parent stem, the petiole
+    and the twig flex in series, so levers count as at least 80 mm (twigs) and 25 mm (leaves):
+    F_max is at most 7.9 / 21 mN for twigs and 2.9 / 9.7 mN for leaves, with medians (close,
+    seeds 0-5) of 3.2 / 19 mN and 1.4 / 3.0 mN. The dense kind has more, larger, stiffer leaves
+    and stiffer twigs.
+
+Rendered detail: ``build_vegetation(..., detail=)`` sets only the meshes' tessellation
+(:mod:`scenes.foliage_meshes`); the contacts are the same at every level.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 import trimesh
 
 from scenes.array import ArraySpec
-from scenes.conventions import make_T, rot_x, rot_y
+from scenes.conventions import make_T, rot_y
+from scenes.foliage_materials import (
+    BRANCH_ALBEDO,
+    LEAF_MODULUS_MPA,
+    LEAF_SLIP_FRICTION,
+    NATURAL,
+    PAPER_ALBEDO,
+    PAPER_MODULUS_MPA,
+    PAPER_SLIP_FRICTION,
+    PAPER_THICKNESS_MM,
+    RGB,
+    TWIG_ALBEDO,
+    TWIG_MODULUS_MPA,
+    TWIG_SLIP_FRICTION,
+    NaturalKind,
+)
+from scenes.foliage_meshes import (
+    CONTACT_RIM_POINTS,
+    FoliageDetail,
+    branch_mesh,
+    get_detail,
+    leaf_mesh,
+    leaf_rims,
+    twig_mesh,
+)
 from scenes.obstacles import CompliantContact, RigidCylinder
 
-RGB = tuple[float, float, float]
+# Geometry of the lab's set-up: SPEC 2 gives the branch; the rest are *estimates* of how the
+# foliage was hung (no drawing of it exists), each a constant a study can sweep.
 
 #: How far the foliage front lies inside the central whisker's span, back from its tip (mm).
 SAMPLING_PENETRATION_MM = {"far": 45.0, "intermediate": 85.0, "close": 125.0}
 #: Branch centres lie this far behind the foliage front (mm).
 BRANCH_BEHIND_FOLIAGE_MM = 12.0
 BRANCH_RADIUS_MM = 5.0  # the 10 mm wooden rod of SPEC 2
-BRANCH_HALF_LENGTH_MM = 400.0  # rendered from y = -400 to +400: fills the view band
-BRANCH_SECTIONS = 24
 
 FOLIAGE_KINDS = ("none", "soft", "stiff", "sparse", "dense")
 PAPER_KINDS = ("soft", "stiff")
 NATURAL_KINDS = ("sparse", "dense")
 
-SLIP_FRICTION = 0.5  # whisker on paper, leaf or bark: slip angle atan(0.5)
 MAX_VERTICAL_RATIO = 0.2
 
-PAPER_MODULUS_MPA = 4000.0
-PAPER_THICKNESS_MM = {"soft": 0.10, "stiff": 0.19}
 STRIP_WIDTH_MM = 12.0
 STRIP_GAP_MM = 2.0
 STRIP_JITTER_MM = 1.0  # keeps neighbours apart even at full yaw
@@ -89,42 +113,14 @@ STRIP_HALF_SPAN_MM = 650.0
 NATURAL_DEPTH_MM = 80.0  # twigs and leaves spread from z_front to about z_front + this
 NATURAL_HALF_SPAN_X_MM = 650.0
 NATURAL_HALF_SPAN_Y_MM = 450.0
-NATURAL_TRIANGLE_BUDGET = 30_000
-TWIG_MODULUS_MPA = 1000.0
+NATURAL_TRIANGLE_BUDGET = 30_000  # at the default detail level
 TWIG_LENGTH_MM = (150.0, 280.0)
 TWIG_MAX_PITCH_RAD = 0.2  # twigs lie roughly parallel to the foliage front
 TWIG_MIN_LEVER_MM = 80.0
-TWIG_SECTIONS = 6
-LEAF_MODULUS_MPA = 100.0
 LEAF_LOADED_WIDTH_MM = 45.0
 LEAF_MIN_LEVER_MM = 25.0
-LEAF_RIM_POINTS = 8
 LEAF_DEPTH_SHARE = 0.3  # damps the depth component of petioles and blades
 LEAF_FACING = 1.5  # biases leaf faces towards the camera, out of the foliage
-
-PAPER_ALBEDO: RGB = (0.32, 0.52, 0.22)  # green paper
-BRANCH_ALBEDO: RGB = (0.45, 0.32, 0.20)  # wooden dowel
-TWIG_ALBEDO: RGB = (0.30, 0.20, 0.12)
-
-
-@dataclass(frozen=True)
-class _NaturalKind:
-    """Per-species parameters of natural foliage."""
-
-    twigs: int
-    leaves_per_twig: int
-    twig_diameter_mm: float
-    leaf_length_mm: tuple[float, float]
-    leaf_aspect: tuple[float, float]  # width / length
-    leaf_thickness_mm: float
-    petiole_mm: float
-    leaf_albedo: RGB
-
-
-NATURAL: dict[str, _NaturalKind] = {
-    "sparse": _NaturalKind(40, 12, 1.1, (40.0, 90.0), (0.45, 0.6), 0.2, 8.0, (0.18, 0.36, 0.10)),
-    "dense": _NaturalKind(75, 16, 1.4, (60.0, 110.0), (0.8, 1.0), 0.3, 20.0, (0.20, 0.32, 0.14)),
-}
 
 
 def _check_name(field_name: str, value: str, allowed: tuple[str, ...]) -> None:
@@ -161,13 +157,15 @@ class VegetationPart:
 
 @dataclass(frozen=True)
 class Vegetation:
-    """The built scene: obstacles for the mechanics and parts for the renderer."""
+    """The built scene: obstacles for the mechanics and parts for the renderer, whose
+    tessellation is ``detail`` (:mod:`scenes.foliage_meshes`; it never changes the obstacles)."""
 
     spec: VegetationSpec
     z_front_mm: float
     branches: tuple[RigidCylinder, ...]
     contacts: tuple[CompliantContact, ...]
     parts: tuple[VegetationPart, ...]
+    detail: FoliageDetail
 
 
 # -- geometry of the sampling position ------------------------------------------------------
@@ -203,12 +201,18 @@ def rod_EI_Nmm2(modulus_MPa: float, diameter_mm: float) -> float:
 
 
 def cantilever_contact(
-    x_mm: float, z_mm: float, EI_Nmm2: float, lever_mm: float, vertical_ratio: float
+    x_mm: float,
+    z_mm: float,
+    EI_Nmm2: float,
+    lever_mm: float,
+    friction: float,
+    vertical_ratio: float,
 ) -> CompliantContact:
     """A cantilever loaded at ``lever_mm`` from its clamp that slips past the rod at the slip
-    angle (module docstring): k = 3 EI / h^3, F_max = 2 EI mu / h^2, give_way = F_max / k."""
+    angle atan(friction) (module docstring): k = 3 EI / h^3, F_max = 2 EI mu / h^2,
+    give_way = F_max / k."""
     stiffness = 3.0 * EI_Nmm2 / lever_mm**3
-    force_limit = 2.0 * EI_Nmm2 * SLIP_FRICTION / lever_mm**2
+    force_limit = 2.0 * EI_Nmm2 * friction / lever_mm**2
     return CompliantContact(
         x_mm=float(x_mm),
         z_mm=float(z_mm),
@@ -242,7 +246,7 @@ def _strips(
     vertical = _vertical_ratios(rng, n)
     EI = plate_EI_Nmm2(PAPER_MODULUS_MPA, t, STRIP_WIDTH_MM)
     contacts = [
-        cantilever_contact(xi, zi, EI, STRIP_CLAMP_HEIGHT_MM, vi)
+        cantilever_contact(xi, zi, EI, STRIP_CLAMP_HEIGHT_MM, PAPER_SLIP_FRICTION, vi)
         for xi, zi, vi in zip(x, z, vertical, strict=True)
     ]
     length = STRIP_BOTTOM_Y_MM + STRIP_CLAMP_HEIGHT_MM
@@ -272,7 +276,7 @@ def _perpendicular(rng: np.random.Generator, axis: np.ndarray) -> np.ndarray:
 
 
 def _twigs(
-    rng: np.random.Generator, kind: _NaturalKind, z_front: float
+    rng: np.random.Generator, kind: NaturalKind, z_front: float
 ) -> tuple[np.ndarray, np.ndarray]:
     """(base, tip) points of the twigs, (n, 3) each, wholly inside the foliage slab."""
     n = kind.twigs
@@ -298,10 +302,11 @@ def _twigs(
 
 
 def _leaves(
-    rng: np.random.Generator, kind: _NaturalKind, base: np.ndarray, tip: np.ndarray, z_front: float
-) -> tuple[np.ndarray, np.ndarray]:
-    """Elliptic leaves on the twigs: (rims (m, K, 3) with rim point 0 at the blade's base,
-    centres (m, 3)); leaves that would poke in front of the foliage front are moved back."""
+    rng: np.random.Generator, kind: NaturalKind, base: np.ndarray, tip: np.ndarray, z_front: float
+) -> Callable[[int], np.ndarray]:
+    """Elliptic leaves on the twigs, as their outlines sampled at k points: (m, k, 3), point 0 at
+    the blade's base. Leaves whose ``CONTACT_RIM_POINTS`` outline would poke in front of the
+    foliage front are moved back by the same amount at every k."""
     twig = np.repeat(np.arange(len(base)), kind.leaves_per_twig)
     m = twig.size
     along = rng.uniform(0.15, 1.0, m)[:, None]
@@ -316,26 +321,15 @@ def _leaves(
     side = np.cross(normal, axis)
     length = rng.uniform(*kind.leaf_length_mm, m)[:, None, None]
     width = length * rng.uniform(*kind.leaf_aspect, m)[:, None, None]
-    t = np.linspace(0, 2 * math.pi, LEAF_RIM_POINTS, endpoint=False)[None, :, None]
-    rim = (
-        blade_base[:, None, :]
-        + 0.5 * length * (1 - np.cos(t)) * axis[:, None, :]
-        + 0.5 * width * np.sin(t) * side[:, None, :]
-    )
+    rim = leaf_rims(blade_base, axis, side, length, width, CONTACT_RIM_POINTS)
     shift = np.maximum(z_front - rim[..., 2].min(axis=1), 0.0)
-    rim[..., 2] += shift[:, None]
-    return rim, rim.mean(axis=1)
 
+    def outlines(k: int) -> np.ndarray:
+        rim = leaf_rims(blade_base, axis, side, length, width, k)
+        rim[..., 2] += shift[:, None]
+        return rim
 
-def _leaf_mesh(rim: np.ndarray, centre: np.ndarray) -> trimesh.Trimesh:
-    """Fans of the leaf ellipses with both windings (the renderer is one-sided)."""
-    m, k = rim.shape[:2]
-    vertices = np.concatenate([centre[:, None, :], rim], axis=1).reshape(-1, 3)
-    start = (np.arange(m) * (k + 1))[:, None]
-    j = np.arange(k)
-    front = np.stack([start + 0 * j, start + 1 + j, start + 1 + (j + 1) % k], axis=-1)
-    faces = np.concatenate([front.reshape(-1, 3), front.reshape(-1, 3)[:, ::-1]])
-    return trimesh.Trimesh(vertices, faces, process=False)
+    return outlines
 
 
 def _plane_crossing(polygon: np.ndarray) -> np.ndarray | None:
@@ -351,12 +345,13 @@ def _plane_crossing(polygon: np.ndarray) -> np.ndarray | None:
 
 
 def _natural(
-    rng: np.random.Generator, name: str, z_front: float, reach_z: float
+    rng: np.random.Generator, name: str, z_front: float, reach_z: float, detail: FoliageDetail
 ) -> tuple[list[CompliantContact], list[VegetationPart]]:
     """Twigs carrying leaves; contacts where they cross y = 0 no deeper than ``reach_z``."""
     kind = NATURAL[name]
     base, tip = _twigs(rng, kind, z_front)
-    rim, centre = _leaves(rng, kind, base, tip, z_front)
+    outlines = _leaves(rng, kind, base, tip, z_front)
+    rim = outlines(CONTACT_RIM_POINTS)
     twig_EI = rod_EI_Nmm2(TWIG_MODULUS_MPA, kind.twig_diameter_mm)
     leaf_EI = plate_EI_Nmm2(LEAF_MODULUS_MPA, kind.leaf_thickness_mm, LEAF_LOADED_WIDTH_MM)
     contacts = []
@@ -366,42 +361,32 @@ def _natural(
             c = b + s * (e - b)
             if c[2] <= reach_z:
                 lever = max(s * np.linalg.norm(e - b), TWIG_MIN_LEVER_MM)
-                contacts.append(cantilever_contact(c[0], c[2], twig_EI, lever, v))
+                contacts.append(
+                    cantilever_contact(c[0], c[2], twig_EI, lever, TWIG_SLIP_FRICTION, v)
+                )
     for polygon, v in zip(rim, _vertical_ratios(rng, len(rim)), strict=True):
         c = _plane_crossing(polygon)
         if c is not None and c[2] <= reach_z:
             lever = max(float(np.linalg.norm(c - polygon[0])), LEAF_MIN_LEVER_MM)
-            contacts.append(cantilever_contact(c[0], c[2], leaf_EI, lever, v))
-    twig_meshes = [
-        trimesh.creation.cylinder(
-            radius=0.5 * kind.twig_diameter_mm, segment=[b, e], sections=TWIG_SECTIONS
-        )
-        for b, e in zip(base, tip, strict=True)
-    ]
+            contacts.append(cantilever_contact(c[0], c[2], leaf_EI, lever, LEAF_SLIP_FRICTION, v))
+    twigs = twig_mesh(base, tip, kind.twig_diameter_mm, detail.twig_sections)
     parts = [
-        VegetationPart("twigs", trimesh.util.concatenate(twig_meshes), TWIG_ALBEDO),
-        VegetationPart("leaves", _leaf_mesh(rim, centre), kind.leaf_albedo),
+        VegetationPart("twigs", twigs, TWIG_ALBEDO),
+        VegetationPart("leaves", leaf_mesh(outlines(detail.leaf_rim_points)), kind.leaf_albedo),
     ]
     return contacts, parts
 
 
-# -- branches -------------------------------------------------------------------------------
+def build_vegetation(
+    spec: VegetationSpec, array: ArraySpec, detail: str | FoliageDetail = "default"
+) -> Vegetation:
+    """The scene of ``spec``: a pure function of it (the seed drives one numpy Generator).
 
-
-def _branch_mesh(branches: tuple[RigidCylinder, ...]) -> trimesh.Trimesh:
-    """Vertical brown rods filling the view band."""
-    rods = []
-    for b in branches:
-        rod = trimesh.creation.cylinder(
-            radius=b.radius_mm, height=2 * BRANCH_HALF_LENGTH_MM, sections=BRANCH_SECTIONS
-        )
-        rod.apply_transform(make_T(rot_x(math.pi / 2), [b.x_mm, 0.0, b.z_mm]))
-        rods.append(rod)
-    return trimesh.util.concatenate(rods)
-
-
-def build_vegetation(spec: VegetationSpec, array: ArraySpec) -> Vegetation:
-    """The scene of ``spec``: a pure function of it (the seed drives one numpy Generator)."""
+    ``detail`` (a name in :data:`scenes.foliage_meshes.DETAIL_LEVELS` or a
+    :class:`FoliageDetail`) sets only the meshes' tessellation; contacts and branches are the
+    same at every level, and the foliage is the same with and without branches.
+    """
+    tessellation = get_detail(detail)
     rng = np.random.default_rng(spec.seed)
     z_front = foliage_front_mm(spec.distance, array)
     z_branch = z_front + BRANCH_BEHIND_FOLIAGE_MM
@@ -412,13 +397,15 @@ def build_vegetation(spec: VegetationSpec, array: ArraySpec) -> Vegetation:
         contacts, strips = _strips(rng, spec.foliage, z_front)
         parts.append(VegetationPart("strips", strips, PAPER_ALBEDO))
     elif spec.foliage in NATURAL_KINDS:
-        contacts, parts = _natural(rng, spec.foliage, z_front, reach_z_mm(array))
+        contacts, parts = _natural(rng, spec.foliage, z_front, reach_z_mm(array), tessellation)
     if branches:
-        parts.append(VegetationPart("branches", _branch_mesh(branches), BRANCH_ALBEDO))
+        rods = branch_mesh(branches, tessellation.branch_sections)
+        parts.append(VegetationPart("branches", rods, BRANCH_ALBEDO))
     return Vegetation(
         spec=spec,
         z_front_mm=z_front,
         branches=branches,
         contacts=tuple(sorted(contacts, key=lambda c: c.x_mm)),
         parts=tuple(parts),
+        detail=tessellation,
     )

@@ -197,6 +197,25 @@ def test_the_twin_differs_from_its_branch_sample_only_in_the_branches() -> None:
         assert np.array_equal(mesh.vertices, meshes[1][name].vertices)
 
 
+@pytest.mark.slow
+def test_the_mechanics_are_a_setting_and_only_dynamic_free_whiskers_swing() -> None:
+    """Dynamic by default; quasi-static is a choice with its own settings hash. Past the
+    branch the dynamic whiskers keep moving where the quasi-static ones sit still."""
+    quasi = DatasetConfig(**{**SMALL, "mechanics": "quasi-static", "frames_step": 1})
+    dynamic = dataclasses.replace(quasi, mechanics="dynamic")
+    assert DatasetConfig(**SMALL).mechanics == "dynamic"
+    assert quasi.settings_hash() != dynamic.settings_hash()
+    sims = [simulate_sample(c, c.samples()[0]) for c in (quasi, dynamic)]
+    lead_in = [s.labels[s.labels["time_s"] < 0.9]["deflection_mm"].to_numpy() for s in sims]
+    assert np.array_equal(lead_in[0], lead_in[1]) and not lead_in[0].any()
+    swing = []
+    for sim in sims:  # the angle of whiskers touching nothing at a frame's time stamp
+        free = ~sim.labels.pivot(index="frame", columns="whisker", values="contact").to_numpy()
+        angle = np.abs(sim.angles_rad[:, -1, :, 0])  # (F, n)
+        swing.append(angle[free & (sim.times_s > sim.motion.whisking_start_s)[:, None]].max())
+    assert swing[0] == 0 and swing[1] > 1e-3
+
+
 def test_sample_ids_are_unique_over_the_default_grid() -> None:
     samples = DatasetConfig().samples()
     assert len(samples) == 4 * 3 * 7 * 2

@@ -200,6 +200,10 @@ CASES: list[tuple[str, str]] = [
     ("dataset --protocol=", r"--protocol.*at least one"),
     ("dataset --lighting=sun,sun", r"--lighting.*twice"),
     ("dataset --frames-step=0", r"--frames-step.*>= 1"),
+    ("dataset --mechanics=springy", r"--mechanics.*'springy'.*dynamic, quasi-static"),
+    ("dataset --foliage-detail=ultra", r"--foliage-detail.*'ultra'.*coarse, default, fine"),
+    ("dataset --integrator=whitted", r"--integrator.*'whitted'"),
+    ("dataset --integrator=path --path-depth=9", r"--path-depth.*1\.\.8"),
     ("dataset --frames-step=100000000", r"--frames-step.*allowed range is 1\.\.\d+"),
     ("dataset --speed=nan", r"--speed.*finite"),
     ("dataset --speed=1e-9", r"--speed.*GiB.*lowest allowed"),
@@ -328,6 +332,19 @@ CASES: list[tuple[str, str]] = [
     ("dataset --family=nan", r"--family: .*unknown; choose one of"),
     ("dataset --family=", r"--family: .*unknown"),
     ("bench dataset --family=apriltag_99h1", r"--family: .*unknown"),
+    # issue 13: ladder
+    ("ladder --out={out} --images=0", r"--images: 0: allowed range is 1\.\.800"),
+    ("ladder --out={out} --frames-step=99", r"--frames-step: 99: allowed range is 1\.\.30"),
+    ("ladder --out={out} --profile=nope", r"--profile: 'nope'"),
+    ("ladder --out={out} --parts=study,film", r"--parts: .*choose from study, video"),
+    ("ladder --out={out} --spp=0,4", r"--spp: .*each an integer in 1\.\.64"),
+    ("ladder --out={out} --spp=a", r"--spp: 'a': integers"),
+    ("ladder --out={out} --reference-spp=0", r"--reference-spp: 0: allowed range is 1\.\.1024"),
+    ("ladder --out={out} --path-depth=9", r"--path-depth: 9: allowed range is 1\.\.8"),
+    ("ladder --out={out} --pipeline=nope", r"--pipeline: .*nope"),
+    ("ladder --out={out} --workers=0", r"--workers: 0: must be >= 1"),
+    ("ladder --out={fx}/afile", r"--out: .*is a file"),
+    ("ladder --images=10", r"--out"),
 ]
 
 

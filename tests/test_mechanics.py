@@ -11,8 +11,9 @@ from scenes.mechanics import simulate
 from scenes.obstacles import CompliantContact, RigidCylinder
 
 # Three whiskers at -45, 0 and +45 degrees: the centre one has its coupling at (0, 210) and
-# points along +z, so obstacles near x = 0 only ever touch it.
-SPEC3 = ArraySpec(n_whiskers=3, marker_ids=(0, 1, 2))
+# points along +z, so obstacles near x = 0 only ever touch it. The rod is rigid here, so that each
+# lever mechanism shows alone; the rod's bending (on by default) has its own tests.
+SPEC3 = ArraySpec(n_whiskers=3, marker_ids=(0, 1, 2), rod_modulus_MPa=None)
 CENTRE = 1
 BASE_Z = SPEC3.frame_radius_mm
 R_EFF = 5.0 + SPEC3.whisker_diameter_mm / 2  # default branch radius plus the rod's
@@ -164,7 +165,7 @@ def test_foliage_that_gives_way_releases_the_whisker():
 
 @pytest.mark.slow
 def test_rods_never_penetrate_branches():
-    spec = ArraySpec()
+    spec = ArraySpec(rod_modulus_MPa=None)  # a bent rod's coupling line may cross the branch
     rng = np.random.default_rng(1)
     branches = [RigidCylinder(0.0, 330.0), RigidCylinder(60.0, 310.0, radius_mm=8.0)]
     foliage = [
@@ -207,7 +208,28 @@ def test_torque_balance_for_an_elastic_contact():
     assert k * theta_v == pytest.approx(vertical * force * lever, rel=1e-9)
 
 
-# -- 8. bad input --------------------------------------------------------------------------------
+# -- 8. friction: a branch pressing the rod holds its vertical angle -----------------------------
+
+
+@pytest.mark.parametrize("mu", [0.35, 0.0])
+def test_branch_friction_holds_the_vertical_angle_after_the_foliage_lets_go(mu):
+    # A tilted strip pushes the rod up (theta_v > 0), a branch then presses it sideways, then the
+    # strip gives way: with friction the rod stays up; without, it springs back to theta_v = 0.
+    tilted = strip(2.0, BASE_Z + 60.0, force_limit_N=0.01, give_way_mm=8.0, vertical_ratio=0.5)
+    res = simulate(SPEC3, sweep(0, 30), [RigidCylinder(10.0, BASE_Z + 100.0)], [tilted], 0.5, mu)
+    theta_h, theta_v = res.angles_rad[:, CENTRE, 0], res.angles_rad[:, CENTRE, 1]
+    pushed_up = theta_v.max()
+    assert pushed_up > 0.04
+    assert res.branch_contact[-1, CENTRE] and not np.isclose(theta_h[-1], 0.0)
+    grip = mu * SPEC3.spring_Nmm_per_rad * abs(theta_h[-1])  # mu N a, N a the branch torque
+    if mu > 0:
+        assert theta_v[-1] > 0.9 * pushed_up  # stuck: the vertical spring torque is within grip
+        assert SPEC3.spring_Nmm_per_rad * theta_v[-1] <= grip + 1e-12
+    else:
+        assert theta_v[-1] == 0.0
+
+
+# -- 9. bad input --------------------------------------------------------------------------------
 
 
 @pytest.mark.parametrize(

@@ -33,7 +33,7 @@ def _time_frames(
 ) -> tuple[list[np.ndarray], float, float, float]:
     """(images, render s, camera twin s, total s) after one warm-up frame (kernels compile)."""
     frames.frame(int(indices[0]))
-    frames.render_s = frames.optics_s = frames.sensor_s = 0.0
+    frames.reset_timers()
     t0 = time.perf_counter()
     images = [frames.frame(int(f)) for f in indices]
     twin_s = frames.optics_s + frames.sensor_s

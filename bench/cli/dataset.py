@@ -45,11 +45,15 @@ OPTION_OF_FIELD = {
     "camera": "--camera",
     "marker_spp": "--spp",
     "subframes": "--subframes",
+    "integrator": "--integrator",
+    "path_depth": "--path-depth",
     "workers": "--workers",
     "executor": "--executor",
     "scheduler": "--scheduler",
     "out": "--out",
     "seed": "--seed",
+    "mechanics": "--mechanics",
+    "foliage_detail": "--foliage-detail",
     "dataset_grid": "--foliage x --distance x --branches x --protocol x --lighting",
     "frames": "--frames",
     "family": "--family",
@@ -136,11 +140,30 @@ def add_dataset_options(p: argparse.ArgumentParser) -> None:
         "--full-frame", action="store_true", help="render whole frames, not just the band"
     )
     p.add_argument(
+        "--integrator",
+        default="direct",
+        help="light paths: direct (sun with shadows, unoccluded sky; default) or path (bounces "
+        "with occluded sky)",
+    )
+    p.add_argument(
+        "--path-depth", type=int, default=3, help="bounces of --integrator path, 1..8 (default 3)"
+    )
+    p.add_argument(
         "--family",
         help="marker family of the array, one a detector decodes: 4x4_50, apriltag_36h11, "
         "apriltag_16h5, ... (OpenCV's dictionary names; default 4x4_50)",
     )
     p.add_argument("--seed", type=seed, default=0, help="random seed, 0..2**32-1 (default 0)")
+    p.add_argument(
+        "--foliage-detail",
+        default="default",
+        help="foliage mesh detail: coarse, default or fine (the shapes drawn; contacts stay)",
+    )
+    p.add_argument(
+        "--mechanics",
+        default="dynamic",
+        help="whisker mechanics: dynamic (rings after a release; default) or quasi-static",
+    )
     p.add_argument(
         "--variant",
         choices=("cuda_ad_rgb", "llvm_ad_rgb"),
@@ -155,7 +178,11 @@ def dataset_config(args: argparse.Namespace) -> DatasetConfig:
     camera = {} if args.camera is None else {"camera": profile_from_option(args.camera)}
     array = {} if args.family is None else {"array": array_of_family(args.family)}
     sampling = FrameSampling(
-        marker_spp=args.spp, subframes=args.subframes, full_frame=args.full_frame
+        marker_spp=args.spp,
+        subframes=args.subframes,
+        full_frame=args.full_frame,
+        integrator=args.integrator,
+        path_depth=args.path_depth,
     )
     return DatasetConfig(
         foliage=args.foliage or quick.get("foliage", DEFAULT_FOLIAGE),
@@ -165,6 +192,8 @@ def dataset_config(args: argparse.Namespace) -> DatasetConfig:
         lightings=args.lighting,
         frames_step=args.frames_step,
         seed=args.seed,
+        mechanics=args.mechanics,
+        foliage_detail=args.foliage_detail,
         speed_mm_s=args.speed,
         amplitude_mm=args.amplitude,
         passes=args.passes if args.passes is not None else quick.get("passes"),
@@ -204,6 +233,11 @@ def cmd_dataset(args: argparse.Namespace) -> int:
         f"{manifest['frames_rendered']} frames in {manifest['wall_s']:.1f} s"
         + (f", {rate:.1f} frames/s" if rate else "")
         + f", variant {manifest['variant']}, camera {manifest['camera_profile']})"
+    )
+    groups = manifest["foliage_groups"]
+    print(
+        "samples sharing foliage (one layout each): "
+        + ", ".join(f"{g} ({len(ids)})" for g, ids in groups.items())
     )
     if manifest["frames_rendered"]:
         per_frame = {k: v / manifest["frames_rendered"] for k, v in manifest["stage_s"].items()}

@@ -35,6 +35,7 @@ from bench.cli.evaluate import (
     cmd_score,
 )
 from bench.cli.images import add_images_parser
+from bench.cli.ladder import add_ladder_parser
 from bench.cli.lens import add_lens_parser
 from bench.cli.render import add_bench_render_parser
 from bench.cli.scale import add_scale_options, cmd_bench_scale
@@ -374,6 +375,7 @@ def _parser() -> argparse.ArgumentParser:
     add_camera_parser(sub, _Parser)
     add_lens_parser(sub, _Parser)
     add_images_parser(sub)
+    add_ladder_parser(sub)
     return parser
 
 

@@ -15,6 +15,8 @@ from pipeline.backends import BACKENDS
 from renderers.frame_sampling import FrameSampling, marker_region
 from scenes.array import ArraySpec
 from scenes.branch_reach import branch_reach_error
+from scenes.dynamics import MECHANICS
+from scenes.foliage_meshes import DETAIL_LEVELS
 from scenes.lighting import lighting_names
 from scenes.marker import check_dictionary
 from scenes.motion import MotionSpec, MotionSpecError, get_protocol
@@ -137,6 +139,12 @@ class DatasetConfig:
     lightings: tuple[str, ...] = ("sun",)
     frames_step: int = 1
     seed: int = 0
+    #: The whiskers' mechanics (:data:`scenes.dynamics.MECHANICS`): ``dynamic`` rings after a
+    #: release (what SPEC 3's contact rule must reject); ``quasi-static`` is equilibrium only.
+    mechanics: str = "dynamic"
+    #: How finely the foliage is meshed (:data:`scenes.foliage_meshes.DETAIL_LEVELS`): the
+    #: rendered shapes only, never the contacts the mechanics get.
+    foliage_detail: str = "default"
     #: Protocol overrides (None keeps the protocol's own value).
     speed_mm_s: float | None = None
     amplitude_mm: float | None = None
@@ -169,6 +177,15 @@ class DatasetConfig:
                 )
         if not self.branches:
             raise DatasetConfigError("branches", "needs at least one configuration")
+        if self.foliage_detail not in DETAIL_LEVELS:
+            raise DatasetConfigError(
+                "foliage_detail",
+                f"{self.foliage_detail!r}: unknown; choose from {', '.join(DETAIL_LEVELS)}",
+            )
+        if self.mechanics not in MECHANICS:
+            raise DatasetConfigError(
+                "mechanics", f"{self.mechanics!r}: unknown; choose from {', '.join(MECHANICS)}"
+            )
         if len({tuple(sorted(b)) for b in self.branches}) != len(self.branches):
             raise DatasetConfigError(
                 "branches", f"{list(self.branches)}: a configuration is listed twice"

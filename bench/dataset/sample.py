@@ -6,10 +6,11 @@ it lists the SHA-256 of the other files, so a rerun skips a sample whose files v
 redoes one that a crash cut short.
 
 Per sample: vegetation (:mod:`scenes.vegetation`) and a protocol (:mod:`scenes.motion`) give the
-array's path; the mechanics (:mod:`scenes.mechanics`) give every whisker's deflection at every
-time sample; the frame recorder (:class:`renderers.frames.FrameRecorder`) renders each frame's
-radiance and records it through the camera twin (one :class:`~scenes.profile.CameraProfile`):
-optics once per frame, then the sensor and stream stages; :mod:`bench.dataset.labels` makes the
+array's path; the mechanics (:mod:`scenes.dynamics`: dynamic by default, quasi-static as the
+config's choice) give every whisker's deflection at every time sample; the frame recorder
+(:class:`renderers.frames.FrameRecorder`) renders each frame's radiance and records it through
+the camera twin (one :class:`~scenes.profile.CameraProfile`): optics once per frame, then the
+sensor and stream stages; :mod:`bench.dataset.labels` makes the
 exact labels with the profile's lens; :mod:`bench.common.video` writes the videos.
 """
 
@@ -83,7 +84,7 @@ class SimulatedSample:
 
 def simulate_sample(config: DatasetConfig, sample: SampleSpec) -> SimulatedSample:
     """Vegetation, path and every whisker's deflection at every time sample, in time order."""
-    from scenes.mechanics import simulate
+    from scenes.dynamics import simulate_at
     from scenes.vegetation import build_vegetation
 
     motion = config.motion(sample.protocol, sample.distance)
@@ -96,20 +97,31 @@ def simulate_sample(config: DatasetConfig, sample: SampleSpec) -> SimulatedSampl
             sample.layout_seed(config.seed),
         ),
         config.array,
+        detail=config.foliage_detail,
     )
     times, source, sub_times = sample_times(
         motion, config.exposure_ms / 1000, k, config.frames_step
     )
     all_times = np.concatenate([sub_times, times[:, None]], axis=1).ravel()
-    order = np.argsort(all_times, kind="stable")
-    result = simulate(
-        config.array, motion.offsets_at(all_times[order]), vegetation.branches, vegetation.contacts
+    # The path's corners join the time samples: between two samples the mechanics move the
+    # array in a straight line, which would cut a reversal that falls between frames.
+    with_corners = np.concatenate([all_times, motion.waypoints()[0]])
+    order = np.argsort(with_corners, kind="stable")
+    sorted_times = with_corners[order]
+    result = simulate_at(
+        config.array,
+        sorted_times,
+        motion.offsets_at(sorted_times),
+        vegetation.branches,
+        vegetation.contacts,
+        mechanics=config.mechanics,
     )
-    unsort = np.empty_like(order)
-    unsort[order] = np.arange(len(order))
-    angles = result.angles_rad[unsort].reshape(len(times), k + 1, -1, 2)
-    contact = result.contact[unsort].reshape(len(times), k + 1, -1)[:, k]
-    branch_contact = result.branch_contact[unsort].reshape(len(times), k + 1, -1)[:, k]
+    rows = np.empty_like(order)
+    rows[order] = np.arange(len(order))
+    rows = rows[: all_times.size]  # each time sample's row, the corners dropped
+    angles = result.angles_rad[rows].reshape(len(times), k + 1, -1, 2)
+    contact = result.contact[rows].reshape(len(times), k + 1, -1)[:, k]
+    branch_contact = result.branch_contact[rows].reshape(len(times), k + 1, -1)[:, k]
     labels = label_table(
         config.camera.lens, config.array, angles[:, k], contact, branch_contact, times, source
     )
@@ -202,6 +214,8 @@ def run_sample(config: DatasetConfig, sample: SampleSpec, out_dir: Path) -> dict
         "foliage_group": sample.foliage_group(config.seed),
         "frames": n_written,
         "frames_step": config.frames_step,
+        "mechanics": config.mechanics,
+        "foliage_detail": config.foliage_detail,
         "exposure_ms": config.exposure_ms,
         "exposure_applied": frames.exposure,  # config.exposure x the lighting preset's
         "camera_profile": config.camera.name,

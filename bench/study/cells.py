@@ -87,11 +87,16 @@ def render_cell(
     distance_mm: float,
     grid_px: int,
     margin_px: int = 16,
+    full_frame: bool = False,
 ) -> CellRender:
     """Render a cell's clean crop once, framed by the carrier and aligned to the block grid
-    (``grid_px``); ``seed`` is the run's, the cell derives its own (:func:`render_seed`)."""
+    (``grid_px``); ``seed`` is the run's, the cell derives its own (:func:`render_seed`).
+    ``full_frame``: the whole frame instead (the fidelity ladder's reference)."""
     T_cam_marker = study_pose(cell.alpha_deg, cell.phi_deg, distance_mm)
-    window = renderer.crop(T_cam_marker, cell.size_mm, grid_px, margin_px)
+    if full_frame:
+        window = Window.full(renderer.lens)
+    else:
+        window = renderer.crop(T_cam_marker, cell.size_mm, grid_px, margin_px)
     t0 = time.perf_counter()
     rendered = renderer.render(
         cell.lighting, T_cam_marker, cell.size_mm, window, render_seed(cell, seed)
@@ -190,11 +195,14 @@ def run_cell(
     out_dir: Path,
     psf_scales: tuple[float, ...] | None = None,
     save_images: bool = False,
+    render: CellRender | None = None,
 ) -> dict:
     """Compute one cell at each PSF scale and write ``cells/<key>_x<scale>.parquet``
-    atomically; return stage timings (s), the images each scale used and its detection rate."""
+    atomically; return stage timings (s), the images each scale used and its detection rate.
+    ``render``: the cell's render when the caller has it (the fidelity ladder draws several
+    camera profiles from one); rendered here without."""
     scales = config.psf_scales if psf_scales is None else psf_scales
-    render = _render(config, cell, renderer)
+    render = _render(config, cell, renderer) if render is None else render
     origin = (render.window.x0, render.window.y0)
     truth = MarkerTruth.of(config.camera.lens, config.marker_id, cell.size_mm, render.T_cam_marker)
     timings = {"render_s": render.render_s, "optics_s": 0.0, "sensor_s": 0.0, "detect_s": 0.0}

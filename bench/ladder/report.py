@@ -1,0 +1,123 @@
+"""The ladder's tables and chart: rungs.csv, defaults.csv, table.md, ladder.png.
+
+Input: one row per (part, axis, rung, cell) with the outcomes (:mod:`bench.ladder.match`) and
+seconds; a rung's cost is its wall seconds per image (study: render, optics, sensor, detection
+and scoring over its images; video: render and camera over its frames).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import pandas as pd  # noqa: E402
+
+from bench.ladder.match import CURRENT_DEFAULTS, knee, rung_matches  # noqa: E402
+
+
+def per_rung(cells: pd.DataFrame) -> pd.DataFrame:
+    """One row per (part, axis, rung): seconds per image, worst rate error, match, knee."""
+    rows = []
+    for part, group in cells.groupby("part", sort=False):
+        group = group.dropna(axis=1, how="all")  # the other part's columns
+        ref = group[group["axis"] == "reference"]
+        ref_rate = ref.set_index("cell")["rate"]
+        for (axis, rung), rows_of in group.groupby(["axis", "rung"], sort=False):
+            rate_err = (rows_of.set_index("cell")["rate"] - ref_rate).abs().max()
+            rows.append(
+                {
+                    "part": part,
+                    "axis": axis,
+                    "rung": rung,
+                    "s_per_image": rows_of["wall_s"].sum() / max(1, rows_of["n_images"].sum()),
+                    "rate_err_max": float(rate_err),
+                    "corner_err_px": float(rows_of["corner_err_px"].median()),
+                    "matches_reference": rung_matches(rows_of, ref),
+                }
+            )
+    return pd.DataFrame(rows)
+
+
+def defaults_table(rungs: pd.DataFrame) -> pd.DataFrame:
+    """Per (part, axis): the cheapest matching rung (the knee) beside the current default."""
+    out = []
+    for (part, axis), group in rungs[rungs["axis"] != "reference"].groupby(
+        ["part", "axis"], sort=False
+    ):
+        ref = rungs[(rungs["part"] == part) & (rungs["axis"] == "reference")]
+        candidates = pd.concat([group, ref.assign(rung="reference")])
+        if axis == "stage":  # a stage off is a simplification, not a cost level: list them all
+            off = group[group["matches_reference"]]["rung"].tolist()
+            cheapest = "off ok: " + (", ".join(off) or "none")
+        else:
+            cheapest = knee(candidates) or "none"
+        out.append(
+            {
+                "part": part,
+                "axis": axis,
+                "cheapest_matching": cheapest,
+                "current_default": CURRENT_DEFAULTS.get((part, axis), ""),
+            }
+        )
+    return pd.DataFrame(out)
+
+
+def _md(table: pd.DataFrame) -> str:
+    """A GitHub markdown table (pandas' to_markdown needs tabulate, not a dependency)."""
+    lines = ["| " + " | ".join(table.columns) + " |", "|" + "---|" * len(table.columns)]
+    lines += ["| " + " | ".join(str(v) for v in row) + " |" for row in table.itertuples(False)]
+    return "\n".join(lines)
+
+
+def markdown(rungs: pd.DataFrame, defaults: pd.DataFrame) -> str:
+    """table.md: the rung table, then the defaults table."""
+    shown = rungs.assign(
+        s_per_image=rungs["s_per_image"].map(lambda v: f"{v:.3g}"),
+        rate_err_max=rungs["rate_err_max"].map(lambda v: f"{v:.3f}"),
+        corner_err_px=rungs["corner_err_px"].map(lambda v: f"{v:.3f}"),
+    )
+    return "## Rungs\n\n" + _md(shown) + "\n\n## Defaults\n\n" + _md(defaults) + "\n"
+
+
+def plot(rungs: pd.DataFrame, defaults: pd.DataFrame, path: Path) -> None:
+    """Outcome error (worst |rate - reference rate| over cells) against seconds per image, one
+    panel per (part, axis), log time; the reference a star, the knee circled."""
+    panels = [k for k in rungs[rungs["axis"] != "reference"].groupby(["part", "axis"]).groups]
+    n = max(1, len(panels))
+    cols = min(3, n)
+    fig, axes = plt.subplots(
+        (n + cols - 1) // cols, cols, figsize=(4.2 * cols, 3.2 * ((n + cols - 1) // cols))
+    )
+    axes = np.atleast_1d(axes).ravel()
+    for ax, (part, axis) in zip(axes, panels, strict=False):
+        group = rungs[(rungs["part"] == part) & (rungs["axis"] == axis)]
+        ref = rungs[(rungs["part"] == part) & (rungs["axis"] == "reference")]
+        colours = np.where(group["matches_reference"], "tab:green", "tab:red")
+        ax.scatter(group["s_per_image"], group["rate_err_max"], c=colours, zorder=3)
+        for row in group.itertuples():
+            ax.annotate(row.rung, (row.s_per_image, row.rate_err_max), fontsize=7,
+                        xytext=(3, 3), textcoords="offset points")  # fmt: skip
+        ax.scatter(ref["s_per_image"], ref["rate_err_max"], marker="*", s=160, c="k",
+                   label="reference", zorder=4)  # fmt: skip
+        chosen = defaults[(defaults["part"] == part) & (defaults["axis"] == axis)]
+        name = chosen["cheapest_matching"].iloc[0] if len(chosen) else None
+        hit = group[group["rung"] == name]
+        if len(hit):
+            ax.scatter(hit["s_per_image"], hit["rate_err_max"], s=260, facecolors="none",
+                       edgecolors="tab:blue", linewidths=2, label="knee", zorder=5)  # fmt: skip
+        ax.set_xscale("log")
+        ax.set_title(f"{part}: {axis}", fontsize=9)
+        ax.set_xlabel("wall s per image")
+        ax.set_ylabel("max |rate - ref|")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7)
+    for ax in axes[len(panels) :]:
+        ax.axis("off")
+    fig.suptitle("Fidelity ladder: outcome error against cost (green: matches the reference)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
