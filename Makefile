@@ -62,11 +62,15 @@ compare: setup
 	  --out results/compare/default
 
 # The fidelity ladder (issue 13): each rendering choice against a path-traced full-frame
-# reference, for study cells near 95 % and a labeled video; resumable, ~40 min on 2 cores.
-LADDER_OPTIONS ?=
+# reference, for study cells near 95 % and a labeled video; resumable. Renders and videos stay
+# in data/ladder; its tables and chart go to results/ladder/.
+LADDER_OPTIONS ?= --spp 1,2,4,8,16 --workers 2
 
 ladder: setup
-	$(BIN)/whiskerbench ladder --out results/ladder $(LADDER_OPTIONS)
+	$(BIN)/whiskerbench ladder --out data/ladder $(LADDER_OPTIONS)
+	mkdir -p results/ladder
+	cp data/ladder/rungs.csv data/ladder/defaults.csv data/ladder/table.md \
+	  data/ladder/ladder.png data/ladder/config.json data/ladder/manifest.json results/ladder/
 
 # The default grid's 84 indoor samples (issue 13 part 5): prototype camera, every frame (about
 # 82,600), then the `paper` preset; the small results go to results/indoor/, the videos stay in
