@@ -283,3 +283,24 @@ def test_full_array_in_dense_foliage_runs(capsys):
         print(f"\nmechanics: 1000 steps x 13 whiskers x 200 contacts + 2 branches: {elapsed:.2f} s")
     assert res.angles_rad.shape == (1000, 13, 2) and np.all(np.isfinite(res.angles_rad))
     assert res.contact.any() and res.branch_contact.any()
+
+
+# -- 9. foliage friction: the slip angle atan(mu) sets how hard and how long a strip holds ------
+
+
+def test_foliage_friction_sets_how_hard_and_how_long_a_strip_holds():
+    """One 80 g/m2 strip swept by the central whisker: twice the friction, twice the force
+    limit and twice the give-way travel (module docstring of scenes.vegetation), so the
+    whisker turns further and stays in contact longer before the strip slips past."""
+    from scenes.foliage_materials import PAPER_MODULUS_MPA
+    from scenes.vegetation import cantilever_contact, plate_EI_Nmm2
+
+    EI = plate_EI_Nmm2(PAPER_MODULUS_MPA, 0.10, 12.0)
+    peak, held = {}, {}
+    for mu in (0.2, 0.4):
+        contact = cantilever_contact(-5.0, 300.0, EI, 35.0, mu, 0.0)
+        result = simulate(SPEC3, sweep(0.0, -40.0), foliage=[contact])
+        peak[mu] = np.abs(result.angles_rad[:, 1, 0]).max()
+        held[mu] = int(result.contact[:, 1].sum())
+    assert peak[0.2] > 0 and peak[0.4] == pytest.approx(2 * peak[0.2], rel=0.05)
+    assert held[0.4] > 1.5 * held[0.2]
