@@ -133,12 +133,15 @@ def sample_recorder(
     sample: SampleSpec,
     sim: SimulatedSample,
     sampling: FrameSampling | None = None,
+    draw_seed: int | None = None,
 ) -> FrameRecorder:
     """The frame recorder of a simulated sample (:class:`renderers.frames.FrameRecorder`): its
-    vegetation, lighting, seeds, deflections and path; ``sampling`` defaults to the config's."""
+    vegetation, lighting, seeds, deflections and path; ``sampling`` defaults to the config's.
+    ``draw_seed``: another dataset seed for the render's and the sensor's random draws only (the
+    same scene drawn again: the fidelity ladder's control); None: the config's."""
     from renderers.frames import FrameRecorder
 
-    seeds = sample.seeds(config.seed)
+    seeds = sample.seeds(config.seed if draw_seed is None else draw_seed)
     return FrameRecorder(
         config.camera,
         config.array,

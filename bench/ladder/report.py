@@ -15,8 +15,10 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
+from matplotlib.ticker import FormatStrFormatter  # noqa: E402
 
 from bench.ladder.match import CURRENT_DEFAULTS, knee, rung_matches  # noqa: E402
+from bench.ladder.rungs import CHECKS  # noqa: E402
 
 
 def per_rung(cells: pd.DataFrame) -> pd.DataFrame:
@@ -25,6 +27,7 @@ def per_rung(cells: pd.DataFrame) -> pd.DataFrame:
     for part, group in cells.groupby("part", sort=False):
         group = group.dropna(axis=1, how="all")  # the other part's columns
         ref = group[group["axis"] == "reference"]
+        control = group[group["axis"] == "control"]
         ref_rate = ref.set_index("cell")["rate"]
         for (axis, rung), rows_of in group.groupby(["axis", "rung"], sort=False):
             rate_err = (rows_of.set_index("cell")["rate"] - ref_rate).abs().max()
@@ -36,7 +39,7 @@ def per_rung(cells: pd.DataFrame) -> pd.DataFrame:
                     "s_per_image": rows_of["wall_s"].sum() / max(1, rows_of["n_images"].sum()),
                     "rate_err_max": float(rate_err),
                     "corner_err_px": float(rows_of["corner_err_px"].median()),
-                    "matches_reference": rung_matches(rows_of, ref),
+                    "matches_reference": rung_matches(rows_of, ref, control),
                 }
             )
     return pd.DataFrame(rows)
@@ -45,9 +48,8 @@ def per_rung(cells: pd.DataFrame) -> pd.DataFrame:
 def defaults_table(rungs: pd.DataFrame) -> pd.DataFrame:
     """Per (part, axis): the cheapest matching rung (the knee) beside the current default."""
     out = []
-    for (part, axis), group in rungs[rungs["axis"] != "reference"].groupby(
-        ["part", "axis"], sort=False
-    ):
+    choices = rungs[~rungs["axis"].isin(("reference", *CHECKS))]
+    for (part, axis), group in choices.groupby(["part", "axis"], sort=False):
         ref = rungs[(rungs["part"] == part) & (rungs["axis"] == "reference")]
         candidates = pd.concat([group, ref.assign(rung="reference")])
         if axis == "stage":  # a stage off is a simplification, not a cost level: list them all
@@ -86,7 +88,8 @@ def markdown(rungs: pd.DataFrame, defaults: pd.DataFrame) -> str:
 def plot(rungs: pd.DataFrame, defaults: pd.DataFrame, path: Path) -> None:
     """Outcome error (worst |rate - reference rate| over cells) against seconds per image, one
     panel per (part, axis), log time; the reference a star, the knee circled."""
-    panels = [k for k in rungs[rungs["axis"] != "reference"].groupby(["part", "axis"]).groups]
+    choices = rungs[~rungs["axis"].isin(("reference", *CHECKS))]
+    panels = list(choices.groupby(["part", "axis"], sort=False).groups)
     n = max(1, len(panels))
     cols = min(3, n)
     fig, axes = plt.subplots(
@@ -110,6 +113,10 @@ def plot(rungs: pd.DataFrame, defaults: pd.DataFrame, path: Path) -> None:
             ax.scatter(hit["s_per_image"], hit["rate_err_max"], s=260, facecolors="none",
                        edgecolors="tab:blue", linewidths=2, label="knee", zorder=5)  # fmt: skip
         ax.set_xscale("log")
+        # narrow ranges have no decade tick: label every tick, small
+        ax.xaxis.set_major_formatter(FormatStrFormatter("%.3g"))
+        ax.xaxis.set_minor_formatter(FormatStrFormatter("%.3g"))
+        ax.tick_params(axis="x", which="both", labelsize=6, labelrotation=45)
         ax.set_title(f"{part}: {axis}", fontsize=9)
         ax.set_xlabel("wall s per image")
         ax.set_ylabel("max |rate - ref|")

@@ -11,7 +11,10 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 
+from bench.dataset.config import DatasetConfig
 from bench.ladder.config import VIDEO_BACKGROUND_SPP, LadderConfig
+from bench.study.config import StudyConfig
+from renderers.frame_sampling import FrameSampling
 from scenes.foliage_meshes import DETAIL_LEVELS
 from scenes.profile import (
     CameraProfile,
@@ -89,6 +92,23 @@ def _rung(part: str, axis: str, name: str, reference: dict, **change) -> Rung:
     return Rung(part, axis, name, tuple(sorted({**reference, **change}.items())))
 
 
+#: Rungs that are not a choice: the reference drawn with other random numbers (its own spread,
+#: which sets how close a rung must come), and the project's defaults all together.
+CHECKS = ("control", "defaults")
+
+
+#: The controls' seed offsets: two draws of the reference's spread.
+CONTROL_SEEDS = (1, 2)
+
+
+def _checks(part: str, reference: dict, defaults: dict) -> list[Rung]:
+    controls = [
+        _rung(part, "control", "other-seed" if k == 1 else f"seed+{k}", reference, seed_offset=k)
+        for k in CONTROL_SEEDS
+    ]
+    return [*controls, _rung(part, "defaults", "project", reference, **defaults)]
+
+
 def _integrator_rungs(part: str, reference: dict, depth: int) -> list[Rung]:
     rungs = [_rung(part, "integrator", "direct", reference, integrator="direct", path_depth=0)]
     rungs += [
@@ -107,8 +127,10 @@ def study_rungs(config: LadderConfig, profile: CameraProfile) -> list[Rung]:
         "path_depth": depth,
         "full_frame": config.study_full_frame,
         "stage_off": "",
+        "seed_offset": 0,
     }
-    rungs = [_rung("study", "reference", "reference", ref)]
+    defaults = {"spp": StudyConfig.spp, "integrator": "direct", "path_depth": 0}
+    rungs = [_rung("study", "reference", "reference", ref), *_checks("study", ref, defaults)]
     rungs += [_rung("study", "spp", str(s), ref, spp=s) for s in config.spps if s != ref["spp"]]
     rungs += _integrator_rungs("study", ref, depth)
     if config.study_full_frame:
@@ -129,8 +151,18 @@ def video_rungs(config: LadderConfig, profile: CameraProfile) -> list[Rung]:
         "full_frame": config.video_full_frame,
         "foliage_detail": FINEST_DETAIL,
         "stage_off": "",
+        "seed_offset": 0,
     }
-    rungs = [_rung("video", "reference", "reference", ref)]
+    sampling = FrameSampling()
+    defaults = {
+        "marker_spp": sampling.marker_spp,
+        "background_spp": sampling.background_spp,
+        "integrator": sampling.integrator,
+        "path_depth": 0,
+        "full_frame": sampling.full_frame,
+        "foliage_detail": DatasetConfig.foliage_detail,
+    }
+    rungs = [_rung("video", "reference", "reference", ref), *_checks("video", ref, defaults)]
     rungs += [_rung("video", "spp", str(s), ref, marker_spp=s) for s in config.spps if s != spp]
     if ref["background_spp"] > 1:
         rungs.append(_rung("video", "background_spp", "1", ref, background_spp=1))
@@ -143,7 +175,7 @@ def video_rungs(config: LadderConfig, profile: CameraProfile) -> list[Rung]:
         if d != FINEST_DETAIL
     ]
     rungs += _stage_rungs("video", ref, profile)
-    return [r for r in rungs if r.axis in ("reference", *config.video_axes)]
+    return [r for r in rungs if r.axis in ("reference", *CHECKS, *config.video_axes)]
 
 
 def _stage_rungs(part: str, ref: dict, profile: CameraProfile) -> list[Rung]:

@@ -82,8 +82,9 @@ def timing_path(out_dir: Path, rung: Rung, cell: Cell) -> Path:
 
 def run_study_task(task: StudyTask, cache: dict) -> StudyTask:
     """Render the cell once and score it for each rung that is not finished."""
-    study = study_config(task.config)
     options = task.rungs[0].options
+    study = study_config(task.config)
+    study = dataclasses.replace(study, seed=study.seed + options["seed_offset"])
     renderer = _renderer(study, options, cache)
     render = render_cell(
         renderer, task.cell, study.seed, study.distance_mm, study.camera.crop_grid_px,

@@ -158,8 +158,9 @@ def _render(task: VideoTask, dataset: DatasetConfig, sample: SampleSpec, cache: 
     """Render ``sample`` once and record it per rung: {rung key: seconds}, and its labels."""
     options = task.rungs[0].options
     sim = _simulated(dataset, sample, options["foliage_detail"], cache)
-    recorder = sample_recorder(dataset, sample, sim, sampling_of(options))
-    noise = sample.seeds(dataset.seed)["noise"]
+    draw_seed = dataset.seed + options["seed_offset"]
+    recorder = sample_recorder(dataset, sample, sim, sampling_of(options), draw_seed)
+    noise = sample.seeds(draw_seed)["noise"]
     replays = []
     for rung in task.rungs:
         stage = rung.options["stage_off"]
