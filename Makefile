@@ -38,7 +38,7 @@ quick: setup
 test: setup
 	$(BIN)/pytest -q
 
-# The inner loop: everything but the tests marked slow (rendered datasets, real runs), under 30 s.
+# The inner loop: everything but the tests marked slow (rendered datasets, real runs), under a minute.
 test-fast: setup
 	$(BIN)/pytest -q -m "not slow"
 
