@@ -187,7 +187,7 @@ def _score(task: VideoTask, rung: Rung, dataset: DatasetConfig, rendered: dict) 
     both scored together. A pipeline that refuses a sample (no free air at its start) gives the
     outcome ``refused``."""
     from bench.evaluate.detect import run_detect
-    from bench.evaluate.score import branch_outcome, score_markers
+    from bench.evaluate.score import SAME_LAYOUT_TWIN, branch_outcome, score_markers
     from pipeline.branches import foliage_threshold
     from pipeline.deflection import NoBaselineError
     from pipeline.presets import get_pipeline
@@ -235,7 +235,7 @@ def _score(task: VideoTask, rung: Rung, dataset: DatasetConfig, rendered: dict) 
         "branch_outcome": outcome["outcome"],
         "estimated_gaps": estimated,
         "threshold_mm": results[branch]["threshold_mm"],
-        "threshold_source": "none-sample twin" if threshold is not None else "online",
+        "threshold_source": SAME_LAYOUT_TWIN if threshold is not None else "online",
         "pipeline_s": time.perf_counter() - t0,
     }
 
