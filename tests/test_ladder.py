@@ -5,7 +5,14 @@ import pytest
 
 from bench.ladder.config import LadderConfig, LadderConfigError
 from bench.ladder.match import knee, rung_matches, within
-from bench.ladder.rungs import STAGE_RUNGS, stage_is_on, stage_off, study_rungs, video_rungs
+from bench.ladder.rungs import (
+    STAGE_RUNGS,
+    project_defaults,
+    stage_is_on,
+    stage_off,
+    study_rungs,
+    video_rungs,
+)
 from scenes.profile import load_profile
 
 
@@ -77,6 +84,8 @@ def test_rungs_vary_one_choice_at_a_time(make):
             assert changed == {"seed_offset"}
         elif rung.axis == "defaults":  # the project's choices all at once, same draws
             assert rung.options["integrator"] == "direct" and rung.options["seed_offset"] == 0
+            assert project_defaults(rung.part).items() <= rung.options.items()
+            assert not rung.options["full_frame"]  # the study's crop, the dataset's band
         else:
             assert changed and len(changed - {"path_depth"}) <= 1, rung  # direct: depth 0 too
     assert len({r.key for r in rungs}) == len(rungs)

@@ -24,21 +24,6 @@ TOLERANCES = {
     "trans_err_mm": (0.1, 0.25),
 }
 
-#: The project's current choice on each axis (FrameSampling and StudyConfig defaults).
-CURRENT_DEFAULTS = {
-    ("study", "spp"): "16",
-    ("study", "integrator"): "direct",
-    ("study", "region"): "crop",
-    ("study", "stage"): "all on",
-    ("video", "spp"): "4",
-    ("video", "background_spp"): "1",
-    ("video", "integrator"): "direct",
-    ("video", "region"): "band",
-    ("video", "foliage_detail"): "default",
-    ("video", "stage"): "all on",
-}
-
-
 #: How many times the reference's own seed-to-seed difference a rung may differ by: the
 #: control is one draw of that difference, a rung's difference is another.
 SPREAD_FACTOR = 2.0

@@ -17,8 +17,8 @@ import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 from matplotlib.ticker import FormatStrFormatter  # noqa: E402
 
-from bench.ladder.match import CURRENT_DEFAULTS, knee, rung_matches  # noqa: E402
-from bench.ladder.rungs import CHECKS  # noqa: E402
+from bench.ladder.match import knee, rung_matches  # noqa: E402
+from bench.ladder.rungs import CHECKS, current_default  # noqa: E402
 
 
 def per_rung(cells: pd.DataFrame) -> pd.DataFrame:
@@ -62,7 +62,7 @@ def defaults_table(rungs: pd.DataFrame) -> pd.DataFrame:
                 "part": part,
                 "axis": axis,
                 "cheapest_matching": cheapest,
-                "current_default": CURRENT_DEFAULTS.get((part, axis), ""),
+                "current_default": current_default(part, axis),
             }
         )
     return pd.DataFrame(out)

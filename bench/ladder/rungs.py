@@ -101,12 +101,47 @@ CHECKS = ("control", "defaults")
 CONTROL_SEEDS = (1, 2)
 
 
-def _checks(part: str, reference: dict, defaults: dict) -> list[Rung]:
+def project_defaults(part: str) -> dict:
+    """The project's own setting on every rendering axis of ``part``: the study's (its spp,
+    exact sky, the marker's crop) or the dataset's (:class:`FrameSampling`, foliage detail)."""
+    if part == "study":
+        return {
+            "spp": StudyConfig.spp,
+            "integrator": "direct",
+            "path_depth": 0,
+            "full_frame": False,
+        }
+    sampling = FrameSampling()
+    return {
+        "marker_spp": sampling.marker_spp,
+        "background_spp": sampling.background_spp,
+        "integrator": sampling.integrator,
+        "path_depth": 0,
+        "full_frame": sampling.full_frame,
+        "foliage_detail": DatasetConfig.foliage_detail,
+    }
+
+
+def current_default(part: str, axis: str) -> str:
+    """The rung name the project's default has on ``axis`` (``defaults.csv``'s column)."""
+    d = project_defaults(part)
+    names = {
+        "spp": str(d.get("spp", d.get("marker_spp"))),
+        "background_spp": str(d.get("background_spp", "")),
+        "integrator": d["integrator"] if d["path_depth"] == 0 else f"path{d['path_depth']}",
+        "region": "frame" if d["full_frame"] else ("crop" if part == "study" else "band"),
+        "foliage_detail": d.get("foliage_detail", ""),
+        "stage": "all on",
+    }
+    return names.get(axis, "")
+
+
+def _checks(part: str, reference: dict) -> list[Rung]:
     controls = [
         _rung(part, "control", "other-seed" if k == 1 else f"seed+{k}", reference, seed_offset=k)
         for k in CONTROL_SEEDS
     ]
-    return [*controls, _rung(part, "defaults", "project", reference, **defaults)]
+    return [*controls, _rung(part, "defaults", "project", reference, **project_defaults(part))]
 
 
 def _integrator_rungs(part: str, reference: dict, depth: int) -> list[Rung]:
@@ -129,8 +164,7 @@ def study_rungs(config: LadderConfig, profile: CameraProfile) -> list[Rung]:
         "stage_off": "",
         "seed_offset": 0,
     }
-    defaults = {"spp": StudyConfig.spp, "integrator": "direct", "path_depth": 0}
-    rungs = [_rung("study", "reference", "reference", ref), *_checks("study", ref, defaults)]
+    rungs = [_rung("study", "reference", "reference", ref), *_checks("study", ref)]
     rungs += [_rung("study", "spp", str(s), ref, spp=s) for s in config.spps if s != ref["spp"]]
     rungs += _integrator_rungs("study", ref, depth)
     if config.study_full_frame:
@@ -153,16 +187,7 @@ def video_rungs(config: LadderConfig, profile: CameraProfile) -> list[Rung]:
         "stage_off": "",
         "seed_offset": 0,
     }
-    sampling = FrameSampling()
-    defaults = {
-        "marker_spp": sampling.marker_spp,
-        "background_spp": sampling.background_spp,
-        "integrator": sampling.integrator,
-        "path_depth": 0,
-        "full_frame": sampling.full_frame,
-        "foliage_detail": DatasetConfig.foliage_detail,
-    }
-    rungs = [_rung("video", "reference", "reference", ref), *_checks("video", ref, defaults)]
+    rungs = [_rung("video", "reference", "reference", ref), *_checks("video", ref)]
     rungs += [_rung("video", "spp", str(s), ref, marker_spp=s) for s in config.spps if s != spp]
     if ref["background_spp"] > 1:
         rungs.append(_rung("video", "background_spp", "1", ref, background_spp=1))
