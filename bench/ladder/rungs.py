@@ -88,6 +88,14 @@ class Rung:
         return tuple((k, v) for k, v in self.settings if k != "stage_off")
 
 
+def render_groups(rungs: list[Rung]) -> list[list[Rung]]:
+    """The rungs grouped by :meth:`Rung.render_key`, in order: each group is rendered once."""
+    groups: dict[tuple, list[Rung]] = {}
+    for rung in rungs:
+        groups.setdefault(rung.render_key(), []).append(rung)
+    return list(groups.values())
+
+
 def _rung(part: str, axis: str, name: str, reference: dict, **change) -> Rung:
     return Rung(part, axis, name, tuple(sorted({**reference, **change}.items())))
 

@@ -20,7 +20,7 @@ import pandas as pd
 
 from bench.common.atomic import write_json
 from bench.ladder.config import LadderConfig
-from bench.ladder.rungs import Rung, stage_off
+from bench.ladder.rungs import Rung, render_groups, stage_off
 from bench.study.cells import render_cell, run_cell
 from bench.study.config import Cell, StudyConfig
 from bench.study.report import wilson_interval
@@ -108,18 +108,15 @@ def run_study_task(task: StudyTask, cache: dict) -> StudyTask:
 
 def study_tasks(config: LadderConfig, rungs: list[Rung], out_dir: Path) -> list[StudyTask]:
     """Tasks for the unfinished (rung, cell) pairs, grouped by render, costly renders first."""
-    groups: dict[tuple, list[Rung]] = {}
-    for rung in rungs:
-        groups.setdefault(rung.render_key(), []).append(rung)
     tasks = []
-    for group in groups.values():
+    for group in render_groups(rungs):
         for cell in config.cells:
             todo = tuple(r for r in group if not timing_path(out_dir, r, cell).exists())
             if todo:
                 tasks.append(StudyTask(config, cell, todo, out_dir))
-    cost = {True: 1, False: 0}
-    return sorted(tasks, key=lambda t: (-cost[t.rungs[0].options["full_frame"]],
-                                        -t.rungs[0].options["spp"]))  # fmt: skip
+    return sorted(
+        tasks, key=lambda t: (-t.rungs[0].options["full_frame"], -t.rungs[0].options["spp"])
+    )
 
 
 def _median(values: pd.Series) -> float:

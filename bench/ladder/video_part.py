@@ -25,7 +25,7 @@ from bench.common.atomic import write_json
 from bench.dataset.config import DatasetConfig, SampleSpec
 from bench.dataset.sample import SimulatedSample, sample_recorder, simulate_sample
 from bench.ladder.config import LadderConfig
-from bench.ladder.rungs import Rung, stage_off
+from bench.ladder.rungs import Rung, render_groups, stage_off
 from bench.study.report import wilson_interval
 from renderers.camera_twin import pixel_gain
 from renderers.frame_sampling import FrameSampling
@@ -132,11 +132,8 @@ def result_path(out_dir: Path, rung: Rung) -> Path:
 
 def video_tasks(config: LadderConfig, rungs: list[Rung], out_dir: Path) -> list[VideoTask]:
     """One task per render setting with an unfinished rung."""
-    groups: dict[tuple, list[Rung]] = {}
-    for rung in rungs:
-        groups.setdefault(rung.render_key(), []).append(rung)
     tasks = []
-    for group in groups.values():
+    for group in render_groups(rungs):
         todo = tuple(r for r in group if not result_path(out_dir, r).exists())
         if todo:
             tasks.append(VideoTask(config, todo, out_dir))
