@@ -89,12 +89,12 @@ def score_markers(detections: pd.DataFrame, labels: pd.DataFrame, foreign_ids: i
         "markers_found": len(matched),
         "recall": len(matched) / visible.sum() if visible.any() else float("nan"),
         "false_detections": int(foreign_ids + (~joined["visible"]).sum()),
-        "corner_err_px": _median(corner_err),
+        "corner_err_px": finite_median(corner_err),
         **_pose_errors(matched, ""),
         **_pose_errors(matched, OWN_POSE_PREFIX),  # NaN where the backend has no pose
     }
     if "deflection_mm" in detections:  # a tracking-only table has no deflection to score
-        out["deflection_err_mm"] = _median(
+        out["deflection_err_mm"] = finite_median(
             np.abs(matched["deflection_mm"] - matched["deflection_mm" + TRUTH_SUFFIX])
         )
         out.update(_precision_recall(matched["contact"], matched["contact" + TRUTH_SUFFIX]))
@@ -108,12 +108,13 @@ def _pose_errors(matched: pd.DataFrame, prefix: str) -> dict:
     cos = (np.einsum("nij,nij->n", rotations_of(matched, prefix=prefix), truth_R) - 1) / 2
     moved = translations_of(matched, prefix=prefix) - translations_of(matched, TRUTH_SUFFIX)
     return {
-        f"{prefix}rot_err_deg": _median(np.degrees(np.arccos(np.clip(cos, -1, 1)))),
-        f"{prefix}trans_err_mm": _median(np.linalg.norm(moved, axis=1)),
+        f"{prefix}rot_err_deg": finite_median(np.degrees(np.arccos(np.clip(cos, -1, 1)))),
+        f"{prefix}trans_err_mm": finite_median(np.linalg.norm(moved, axis=1)),
     }
 
 
-def _median(values) -> float:
+def finite_median(values) -> float:
+    """The median of the finite values (NaN where there are none)."""
     values = np.asarray(values, dtype=float)
     values = values[np.isfinite(values)]
     return float(np.median(values)) if len(values) else float("nan")

@@ -15,10 +15,10 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
 import pandas as pd
 
 from bench.common.atomic import write_json
+from bench.evaluate.score import finite_median
 from bench.ladder.config import LadderConfig
 from bench.ladder.rungs import Rung, render_groups, stage_off
 from bench.study.cells import render_cell, run_cell
@@ -119,12 +119,6 @@ def study_tasks(config: LadderConfig, rungs: list[Rung], out_dir: Path) -> list[
     )
 
 
-def _median(values: pd.Series) -> float:
-    values = values.to_numpy(float)
-    values = values[np.isfinite(values)]
-    return float(np.median(values)) if len(values) else float("nan")
-
-
 def study_outcomes(config: LadderConfig, rung: Rung, out_dir: Path) -> list[dict]:
     """One row per cell of a finished rung: rate and its Wilson interval, errors, seconds."""
     rows = []
@@ -142,9 +136,9 @@ def study_outcomes(config: LadderConfig, rung: Rung, out_dir: Path) -> list[dict
                 "rate": k / n if n else float("nan"),
                 "rate_lo": float(lo),
                 "rate_hi": float(hi),
-                "corner_err_px": _median(table[f"corner_err_px_{REFINEMENT}"]),
-                "rot_err_deg": _median(table[f"rot_err_deg_{REFINEMENT}"]),
-                "trans_err_mm": _median(table[f"trans_err_mm_{REFINEMENT}"]),
+                "corner_err_px": finite_median(table[f"corner_err_px_{REFINEMENT}"]),
+                "rot_err_deg": finite_median(table[f"rot_err_deg_{REFINEMENT}"]),
+                "trans_err_mm": finite_median(table[f"trans_err_mm_{REFINEMENT}"]),
                 "wall_s": timing["render_s"] + timing["score_s"],
             }
         )
