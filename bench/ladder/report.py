@@ -45,11 +45,15 @@ def per_rung(cells: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
+def _choices(rungs: pd.DataFrame) -> pd.DataFrame:
+    """The rungs that vary one rendering choice: neither the reference nor its checks."""
+    return rungs[~rungs["axis"].isin(("reference", *CHECKS))]
+
+
 def defaults_table(rungs: pd.DataFrame) -> pd.DataFrame:
     """Per (part, axis): the cheapest matching rung (the knee) beside the current default."""
     out = []
-    choices = rungs[~rungs["axis"].isin(("reference", *CHECKS))]
-    for (part, axis), group in choices.groupby(["part", "axis"], sort=False):
+    for (part, axis), group in _choices(rungs).groupby(["part", "axis"], sort=False):
         ref = rungs[(rungs["part"] == part) & (rungs["axis"] == "reference")]
         candidates = pd.concat([group, ref.assign(rung="reference")])
         if axis == "stage":  # a stage off is a simplification, not a cost level: list them all
@@ -88,8 +92,7 @@ def markdown(rungs: pd.DataFrame, defaults: pd.DataFrame) -> str:
 def plot(rungs: pd.DataFrame, defaults: pd.DataFrame, path: Path) -> None:
     """Outcome error (worst |rate - reference rate| over cells) against seconds per image, one
     panel per (part, axis), log time; the reference a star, the knee circled."""
-    choices = rungs[~rungs["axis"].isin(("reference", *CHECKS))]
-    panels = list(choices.groupby(["part", "axis"], sort=False).groups)
+    panels = list(_choices(rungs).groupby(["part", "axis"], sort=False).groups)
     n = max(1, len(panels))
     cols = min(3, n)
     fig, axes = plt.subplots(
