@@ -237,6 +237,42 @@ class Stream:
         return 8 if self.chroma_subsampling == "4:4:4" else 16
 
 
+# --- The band: what is still uncertain ---------------------------------------------------------
+
+#: Parameters a profile's band may span: the PSF table's scale (1 = the table as written).
+BAND_PARAMS = ("psf_scale",)
+#: Levels a band is studied at: its ends, the nominal (1) and the midpoints between.
+BAND_LEVELS = 5
+
+
+@dataclass(frozen=True)
+class Band:
+    """The range of the PSF scale the profile's evidence leaves open, as ``[low, high]`` around
+    the nominal 1 (the table as written). ``make study``, the comparison's lens-sharpness sweep
+    and ``bench pipeline`` run across it; ``whiskerbench camera calibrate`` writes it."""
+
+    psf_scale: tuple[float, float] = (1.0, 1.0)
+
+    def __post_init__(self) -> None:
+        ends = self.psf_scale
+        if not isinstance(ends, list | tuple) or len(ends) != 2:
+            raise ProfileError("band.psf_scale", f"{ends!r}: needs [low, high]")
+        low = _number("band.psf_scale", ends[0], 0.0, 1.0)
+        high = _number("band.psf_scale", ends[1], 1.0, 10.0)
+        object.__setattr__(self, "psf_scale", (low, high))
+
+    def psf_levels(self) -> tuple[float, ...]:
+        """The band's study levels: low, halfway to 1, 1, halfway to high, high (distinct
+        values only, rounded to 4 decimals so they name cell files stably)."""
+        low, high = self.psf_scale
+        levels = (low, (low + 1) / 2, 1.0, (1 + high) / 2, high)
+        return tuple(sorted({round(v, 4) for v in levels}))
+
+    @property
+    def psf_ends(self) -> tuple[float, float]:
+        return self.psf_scale
+
+
 # --- The profile -------------------------------------------------------------------------------
 
 _SECTIONS = {
@@ -246,6 +282,7 @@ _SECTIONS = {
     "sensor": Sensor,
     "processing": Processing,
     "stream": Stream,
+    "band": Band,
 }
 
 
@@ -262,6 +299,7 @@ class CameraProfile:
     sensor: Sensor = field(default_factory=Sensor)
     processing: Processing = field(default_factory=Processing)
     stream: Stream = field(default_factory=Stream)
+    band: Band = field(default_factory=Band)
     sources: dict[str, str] = field(default_factory=dict)
 
     @property
