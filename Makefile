@@ -25,8 +25,9 @@ llvm: $(VENV)/.installed
 	  echo "      Fast path: sudo apt-get install libllvm19  (or set DRJIT_LIBLLVM_PATH)"; \
 	fi
 
-# The default study on the prototype camera with its sensitivity band (PSF x 0.5 .. 1.5).
-BAND ?= 0.5,0.75,1,1.25,1.5
+# The default study on the prototype camera across its band: the PSF scales the profile's
+# calibration left open (scenes/profiles/prototype.json "band"; whiskerbench camera calibrate).
+BAND ?= band
 
 study: setup
 	$(BIN)/whiskerbench detectability --camera prototype --psf-scale $(BAND) \

@@ -7,6 +7,8 @@
 * :mod:`bench.evaluate`: running pipelines on videos and judging them (detect, score, sweeps,
   compare).
 * :mod:`bench.lens`: fitting a camera profile's optics, noise and stream from real footage.
+* :mod:`bench.twin`: holding the camera twin to what the real sensor did (observations checked,
+  estimates calibrated).
 * :mod:`bench.ladder`: the fidelity ladder: each rendering shortcut against a reference.
 * :mod:`bench.benchmarks`: speed benchmarks with same-run baselines.
 * :mod:`bench.cli`: the ``whiskerbench`` command line, which only parses, validates and calls.

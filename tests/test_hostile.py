@@ -509,9 +509,13 @@ def test_shipped_settings_are_within_the_limits():
     from bench.cli import limits
     from bench.dataset.config import DatasetConfig
     from bench.evaluate.sweep_config import SweepConfig
-    from bench.study.config import BAND_PSF_SCALES, StudyConfig
+    from bench.study.config import StudyConfig
+    from scenes.profile import load_profile
 
-    limits.check_study(StudyConfig(psf_scales=BAND_PSF_SCALES), limits.default_workers())
+    limits.check_study(
+        StudyConfig(psf_scales=load_profile("prototype").band.psf_levels()),
+        limits.default_workers(),
+    )
     dataset = DatasetConfig()
     limits.check_dataset(dataset)
     full = dataclasses.replace(dataset.sampling, full_frame=True)

@@ -14,7 +14,17 @@ ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("scenes", "renderers", "pipeline", "bench")
 
 #: bench's sub-packages in data-flow order (bench/__init__.py): each imports only earlier ones.
-BENCH_ORDER = ("common", "study", "dataset", "evaluate", "lens", "ladder", "benchmarks", "cli")
+BENCH_ORDER = (
+    "common",
+    "study",
+    "dataset",
+    "evaluate",
+    "lens",
+    "twin",
+    "ladder",
+    "benchmarks",
+    "cli",
+)
 
 #: What each layer must not import (a name matches itself and its submodules).
 FORBIDDEN = {

@@ -12,6 +12,7 @@ import sys
 from pathlib import Path
 
 from bench.cli.args import check_out_file, float_list
+from bench.cli.calibrate import add_calibrate_parser
 from bench.cli.limits import check_memory
 from bench.common.atomic import write_json
 from scenes.calibration_import import FORMATS, CalibrationError, import_calibration
@@ -29,7 +30,7 @@ IMPORT_OPTION_OF_FIELD = {
 
 
 def add_camera_parser(subparsers, parser_class: type[argparse.ArgumentParser]) -> None:
-    """Register ``camera show|project|import``; each sets ``func`` (args -> exit code)."""
+    """Register ``camera show|project|import|calibrate``; each sets ``func`` (args -> exit code)."""
     camera = subparsers.add_parser("camera", help="show or import camera profiles, project rays")
     sub = camera.add_subparsers(dest="camera_command", required=True, parser_class=parser_class)
     where = f"a shipped profile ({', '.join(shipped_profiles()) or 'none yet'}) or a JSON file"
@@ -66,6 +67,7 @@ def add_camera_parser(subparsers, parser_class: type[argparse.ArgumentParser]) -
     imp.add_argument("--out", required=True, help="profile JSON to write")
     imp.add_argument("--name", help="profile name (default: the --out file's stem)")
     imp.set_defaults(func=cmd_camera_import)
+    add_calibrate_parser(sub, where)
 
 
 def _fail(args: argparse.Namespace, option: str, detail: str) -> int:

@@ -41,7 +41,6 @@ from bench.cli.render import add_bench_render_parser
 from bench.cli.scale import add_scale_options, cmd_bench_scale
 from bench.common.manifest import input_digests
 from bench.study.config import (
-    BAND_PSF_SCALES,
     DEFAULT_ALPHAS_DEG,
     DEFAULT_PHIS_DEG,
     DEFAULT_SIZES_MM,
@@ -131,11 +130,11 @@ def _add_study_options(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--psf-scale",
-        type=float_list("--psf-scale"),
-        metavar="F,...",
+        type=psf_scales_option,
+        metavar="F,...|band",
         default=(1.0,),
-        help="factors on the profile's PSF widths; several draw the sensitivity band "
-        "(make study: 0.5,0.75,1,1.25,1.5; default 1)",
+        help="factors on the profile's PSF widths; several draw the sensitivity band; 'band': "
+        "the profile's own band, its ends, midpoints and 1 (make study; default 1)",
     )
     p.add_argument(
         "--cell-px",
@@ -199,10 +198,20 @@ def _add_study_options(p: argparse.ArgumentParser) -> None:
     )
 
 
+#: ``--psf-scale band``: the camera profile's own band (:meth:`scenes.profile.Band.psf_levels`).
+BAND = "band"
+
+
+def psf_scales_option(text: str) -> tuple[float, ...] | str:
+    """argparse type of ``--psf-scale``: ``band`` or a comma-separated list of factors."""
+    return BAND if text.strip() == BAND else float_list("--psf-scale")(text)
+
+
 def study_config(args: argparse.Namespace) -> StudyConfig:
     """The StudyConfig the options describe (--quick fills what was not given)."""
     quick = QUICK if args.quick else {}
     lightings = tuple(name for item in args.lighting for name in item.split(",") if name)
+    camera = profile_from_option(args.camera)
     return StudyConfig(
         sizes_mm=args.sizes or quick.get("sizes", DEFAULT_SIZES_MM),
         alphas_deg=args.alphas or quick.get("alphas", DEFAULT_ALPHAS_DEG),
@@ -213,8 +222,8 @@ def study_config(args: argparse.Namespace) -> StudyConfig:
         dictionary=args.dictionary,
         seed=args.seed,
         spp=args.spp,
-        camera=profile_from_option(args.camera),
-        psf_scales=args.psf_scale,
+        camera=camera,
+        psf_scales=camera.band.psf_levels() if args.psf_scale == BAND else args.psf_scale,
         exposure=args.exposure,
         detector=detector_from_option(args.cell_px, args.detector, args.dictionary),
     )
@@ -232,7 +241,7 @@ def default_out(config: StudyConfig, quick: bool) -> Path:
             corner_refinement=default.detector.corner_refinement,
         ),
     )  # fmt: skip
-    if plain == default or plain == StudyConfig(psf_scales=BAND_PSF_SCALES):
+    if plain == default or plain == StudyConfig(psf_scales=default.camera.band.psf_levels()):
         name = "default"
     elif quick and plain == study_config(_parser().parse_args(["detectability", "--quick"])):
         name = "quick"

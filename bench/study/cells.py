@@ -121,7 +121,7 @@ def camera_images(
     return sensor_images(irradiance, profile, rng, n, origin_px, exposure)
 
 
-class _Draws:
+class CellDraws:
     """A cell's camera images at one PSF scale, batch after batch, as the study draws them: an
     unshadowed crop's optics run once for every batch; under a canopy each image has its own
     shadow, so the optics run per batch. Keeps the time spent in optics and sensor."""
@@ -174,7 +174,7 @@ def cell_images(
     """A cell's first ``n_images`` camera images as the study draws them, in one call:
     ((N, H, W) uint8, the crop's window, T_cam_marker)."""
     render = _render(config, cell, renderer)
-    images = _Draws(config, renderer, render, cell, psf_scale).draw(n_images)
+    images = CellDraws(config, renderer, render, cell, psf_scale).draw(n_images)
     return images, render.window, render.T_cam_marker
 
 
@@ -208,7 +208,7 @@ def run_cell(
     timings = {"render_s": render.render_s, "optics_s": 0.0, "sensor_s": 0.0, "detect_s": 0.0}
     used, rates = {}, {}
     for scale in scales:
-        draws = _Draws(config, renderer, render, cell, scale)
+        draws = CellDraws(config, renderer, render, cell, scale)
         pose_scale = scale == config.nominal_psf_scale
         rows: list[dict] = []
         k = scored = 0  # right ids, and images the detector did not crash on

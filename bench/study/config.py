@@ -24,8 +24,6 @@ from scenes.validation import MAX_SEED, FieldError
 DEFAULT_SIZES_MM = (8.8, 11.0, 13.2, 17.6)
 DEFAULT_ALPHAS_DEG = (0.0, 20.0, 40.0, 60.0, 70.0, 80.0, 85.0, 90.0)
 DEFAULT_PHIS_DEG = tuple(float(p) for p in range(0, 80, 10))
-#: The sensitivity band of ``make study``: the profile's PSF widths times each factor.
-BAND_PSF_SCALES = (0.5, 0.75, 1.0, 1.25, 1.5)
 #: Cumulative image counts at which a cell's Wilson interval is checked against 0.95 (report's
 #: THRESHOLD). All-detected cells are settled at 80 (the first step whose Wilson lower bound,
 #: 80/83.8 = 0.954, clears 0.95), never-detected ones at 10; cells near 0.95 go on to the cap.
