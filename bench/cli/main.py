@@ -15,6 +15,7 @@ from pathlib import Path
 
 from bench.cli import limits
 from bench.cli.args import (
+    RUNS,
     add_executor_options,
     check_executor,
     check_out_folder,
@@ -220,7 +221,7 @@ def study_config(args: argparse.Namespace) -> StudyConfig:
 
 
 def default_out(config: StudyConfig, quick: bool) -> Path:
-    """``results/detectability/<name>``: ``default``, ``quick`` or ``custom-<hash>`` of the grid,
+    """``runs/detectability/<name>``: ``default``, ``quick`` or ``custom-<hash>`` of the grid,
     then the detector and the family where they are not the defaults (``quick-locus``)."""
     default = StudyConfig()
     plain = dataclasses.replace(
@@ -245,7 +246,7 @@ def default_out(config: StudyConfig, quick: bool) -> Path:
         name = f"custom-{digest}"
     extra = [config.detector.backend] if config.detector.backend != "opencv" else []
     extra += [config.dictionary] if config.dictionary != default.dictionary else []
-    return Path("results") / "detectability" / "-".join([name, *extra])
+    return RUNS / "detectability" / "-".join([name, *extra])
 
 
 def _cmd_detectability(args: argparse.Namespace) -> int:
@@ -308,7 +309,7 @@ def _parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
     study = sub.add_parser("detectability", help="rerun the marker-size detectability study")
     _add_study_options(study)
-    study.add_argument("--out", help="run folder (default results/detectability/<name>)")
+    study.add_argument("--out", help=f"run folder (default {RUNS}/detectability/<name>)")
     study.add_argument(
         "--save-images",
         action="store_true",
