@@ -41,7 +41,7 @@ from bench.cli.ladder import add_ladder_parser
 from bench.cli.lens import add_lens_parser
 from bench.cli.render import add_bench_render_parser
 from bench.cli.scale import add_scale_options, cmd_bench_scale
-from bench.common.manifest import input_digests
+from bench.common.manifest import input_digests, whiskerbench_version
 from bench.study.config import (
     BAND_PSF_SCALES,
     DEFAULT_ALPHAS_DEG,
@@ -306,6 +306,7 @@ def _cmd_bench_scale(args: argparse.Namespace) -> int:
 
 def _parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="whiskerbench", description=__doc__.splitlines()[0])
+    parser.add_argument("--version", action="version", version=f"%(prog)s {whiskerbench_version()}")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
     study = sub.add_parser("detectability", help="rerun the marker-size detectability study")
     _add_study_options(study)
