@@ -1,8 +1,15 @@
 """The command line: bad input gives one line naming the option, exit code 2, nothing written."""
 
+import os
+import subprocess
+import sys
+from pathlib import Path
+
 import pytest
 
 from bench.cli.main import main
+
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def call(argv):
@@ -74,3 +81,38 @@ def test_detect_reads_a_profile_by_name_or_file(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "no such file" in err and "--camera" not in err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.json", "good.json"]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    ("argv", "unbuffered"),
+    [
+        (["camera", "show", "prototype"], ""),  # the print overflows the buffer, or the flush
+        (["camera", "show", "prototype"], "1"),  # every print writes
+        (["--help"], ""),  # argparse exits (SystemExit) with the help still buffered
+    ],
+)
+def test_a_reader_closing_stdout_early_ends_the_command_quietly(argv, unbuffered):
+    """``whiskerbench camera show prototype | head -1``: no traceback, no internal error."""
+    env = {**os.environ, "PYTHONUNBUFFERED": unbuffered}  # empty: Python's default buffering
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "bench.cli", *argv],
+        cwd=ROOT,
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+    )
+    proc.stdout.close()  # the reader is gone before the command writes a byte
+    err = proc.stderr.read().decode()
+    assert proc.wait(timeout=120) in (0, 141) and err == ""
+
+
+def test_a_broken_pipe_elsewhere_is_still_a_bug(monkeypatch, capsys):
+    """Only stdout's reader going away is quiet; a worker's broken pipe is reported."""
+
+    def crash(args):
+        raise BrokenPipeError(32, "Broken pipe")
+
+    monkeypatch.setattr("bench.cli.main._cmd_detectability", crash)
+    assert main(["detectability", "--quick"]) == 1
+    assert "internal error: BrokenPipeError" in capsys.readouterr().err

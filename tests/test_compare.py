@@ -227,3 +227,100 @@ def test_a_peer_runs_in_every_part_of_compare(rendered_pair, tmp_path):
     report = (out / "report.md").read_text()
     assert "## Who leads" in report and "- locus: no failed frames" in report
     assert "](grids/locus-grid-outdoor-lab.png)" in report
+
+
+def _all_refused(samples: int = 2) -> pd.DataFrame:
+    """The scores of a pipeline that refused every sample, as ``score_dataset`` tables them."""
+    from bench.evaluate.score import SCORED_COLUMNS
+
+    rows = [
+        {"sample_id": f"s{i}", "outcome": "refused", "refused_reason": "no no-contact frames"}
+        for i in range(samples)
+    ]
+    columns = ["sample_id", "outcome", "refused_reason", *SCORED_COLUMNS]
+    return pd.DataFrame(rows).reindex(columns=columns)
+
+
+def test_a_pipeline_that_refuses_every_sample_keeps_its_row(tmp_path):
+    """No rate, no error (NaN), the counts kept; off the Pareto front, in the chart's and the
+    report's words, leading on nothing but its speed."""
+    from bench.evaluate.compare import plot_pareto, refused_lines, summarize
+    from bench.evaluate.leaders import leaders
+
+    row = summarize("naive", _all_refused())
+    assert (row["samples"], row["refused_samples"]) == (2, 2)
+    for rate in ("correct_rate", "recall", "deflection_err_mm", "corner_err_px", "rot_err_deg"):
+        assert np.isnan(row[rate]), rate
+    assert pareto_front(np.array([5.0, 1.0]), np.array([np.nan, 0.5]), True).tolist() == [
+        False, True
+    ]  # fmt: skip
+    summary = pd.DataFrame([{**row, "fps": 50.0}])
+    plot_pareto(summary, tmp_path / "alone.png")  # every pipeline without a value: still a chart
+    paper = {**row, "pipeline": "paper", "refused_samples": 0, "correct_rate": 0.5, "recall": 0.9}
+    summary = pd.DataFrame([{**row, "fps": 50.0}, {**paper, "fps": 20.0}])
+    plot_pareto(summary, tmp_path / "pareto.png")
+    assert (tmp_path / "pareto.png").stat().st_size > 1000
+    t = leaders(summary).set_index("measure")
+    assert t.loc["fps", "leader"] == "naive" and t.loc["recall", "leader"] == "paper"
+    assert t.loc["correct_rate", "leader"] == "paper"
+    assert refused_lines(summary) == [
+        "naive: refused all 2 samples (why: `refused_reason` in its scores' samples.csv), so it "
+        "has no accuracy measure"
+    ]
+
+
+def _refusing(monkeypatch, refused: str) -> None:
+    """Pipeline ``refused`` refuses every sample (no no-contact frames); the others run."""
+    from bench.evaluate import detect
+    from pipeline.deflection import NoBaselineError
+
+    real = detect.run_detect
+
+    def run_detect(video, camera, config, *args, **kwargs):
+        if config.name == refused:
+            raise NoBaselineError("no no-contact frames at the start (planted)")
+        return real(video, camera, config, *args, **kwargs)
+
+    monkeypatch.setattr(detect, "run_detect", run_detect)
+
+
+@pytest.mark.slow
+def test_score_and_compare_report_a_pipeline_that_refuses_every_sample(
+    rendered_pair, tmp_path, monkeypatch, capsys
+):
+    import shutil
+
+    from bench.cli.main import main
+    from bench.evaluate import sweep_config
+    from bench.evaluate.score import SCORED_COLUMNS
+
+    dataset = tmp_path / "data"  # a copy: the session's pair keeps its own scores
+    shutil.copytree(rendered_pair, dataset)
+    _refusing(monkeypatch, "naive")
+    assert main(["score", str(dataset), "--pipeline", "naive", "--out", str(tmp_path / "s")]) == 0
+    out, err = capsys.readouterr()
+    assert "2 samples, 2 refused: no rates;" in out and err.count("refused: no no-contact") == 2
+    table = pd.read_csv(tmp_path / "s" / "samples.csv")
+    assert set(SCORED_COLUMNS) <= set(table) and (table["outcome"] == "refused").all()
+
+    tiny = dataclasses.replace(
+        sweep_config.QUICK_SWEEP, alphas_deg=(0.0,), phis_deg=(0.0,), lightings=("lab",),
+        blur_px=(0.0,), read_noise_e=(3.0,), seeds=1, images=2,
+    )  # fmt: skip
+    monkeypatch.setattr(sweep_config, "QUICK_SWEEP", tiny)
+    monkeypatch.setattr("bench.evaluate.compare.full_frames", lambda config, n: ([], None))
+    monkeypatch.setattr("bench.evaluate.compare.time_pipeline", lambda *a: (10.0, None))
+    report = tmp_path / "report"
+    argv = ["compare", str(dataset), "--pipelines", "paper,naive", "--quick", "--out", str(report)]
+    assert main(argv) == 0
+    out = capsys.readouterr().out
+    assert "naive:    10.0 frames/s, refused all 2 samples, no rates" in out
+    summary = pd.read_csv(report / "summary.csv").set_index("pipeline")
+    assert summary.loc["naive", ["samples", "refused_samples"]].tolist() == [2, 2]
+    assert np.isnan(summary.loc["naive", "correct_rate"]) and summary.loc["paper", "recall"] > 0.9
+    # a scored table has no column the refused table lacks (SCORED_COLUMNS is complete)
+    scored = pd.read_csv(dataset / "scores" / "paper" / "samples.csv")
+    assert set(scored) <= set(table)
+    assert "- naive: refused all 2 samples" in (report / "report.md").read_text()
+    leads = pd.read_csv(report / "leaders.csv").set_index("measure")
+    assert leads.loc["fps", "leader"] == "paper, naive" and leads.loc["recall", "leader"] == "paper"

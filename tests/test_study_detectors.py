@@ -64,6 +64,17 @@ def test_default_folders_differ_by_detector_and_family(argv, folder, monkeypatch
     assert default_out(study_config(args), args.quick).name == folder
 
 
+def test_user_runs_default_outside_the_committed_results():
+    """A bare ``whiskerbench detectability`` on a fresh clone was refused: its default folder
+    was the committed results/detectability/default. Defaults go under runs/, ignored by git."""
+    from bench.cli.images import DEFAULT_OUT
+
+    args = _parser().parse_args(["detectability"])
+    assert default_out(study_config(args), args.quick) == Path("runs/detectability/default")
+    assert DEFAULT_OUT.parts == ("runs", "detect-images")  # detect-images' default
+    assert "/runs/" in (ROOT / ".gitignore").read_text().splitlines()
+
+
 def test_custom_grids_keep_their_hash_and_add_the_detector(monkeypatch):
     monkeypatch.setattr("bench.study.config.require", lambda backend: None)
     names = [

@@ -16,6 +16,11 @@ from bench.common.atomic import check_writable
 from bench.common.executor import CONNECT_TIMEOUT_S, EXECUTORS
 from scenes.validation import MAX_SEED, FieldError
 
+#: Where a command's run folder goes without ``--out``: not ``results/``, which holds the
+#: committed results (the Makefile's targets write there by ``--out``), so a user's run on a
+#: fresh clone is neither refused by nor mixed into a committed one. Ignored by git.
+RUNS = Path("runs")
+
 
 def _distinct(option: str, text: str, values: tuple) -> tuple:
     if not values:

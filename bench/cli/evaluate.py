@@ -186,11 +186,16 @@ def cmd_score(args: argparse.Namespace) -> int:
         )
     except (ValueError, FileNotFoundError) as exc:
         return fail(str(exc))
-    correct = (table["outcome"] == "correct").mean()
     refused = table[table["outcome"] == "refused"]
+    if len(refused) == len(table):  # no answer to rate: the counts say why
+        accuracy = "no rates"
+    else:
+        correct = (table["outcome"] == "correct").mean()
+        accuracy = f"branch outcome correct in {correct:.0%}, marker recall "
+        accuracy += f"{table['recall'].mean():.3f}"
     print(
-        f"{len(table)} samples: branch outcome correct in {correct:.0%}, marker recall "
-        f"{table['recall'].mean():.3f}; wrote {out}/samples.csv and grid-*.png"
+        f"{len(table)} samples, {len(refused)} refused: {accuracy}; wrote {out}/samples.csv "
+        "and grid-*.png"
     )
     for row in refused.itertuples():
         print(f"warning: {row.sample_id} refused: {row.refused_reason}", file=sys.stderr)
@@ -312,10 +317,14 @@ def cmd_compare(args: argparse.Namespace) -> int:
     except (ValueError, FileNotFoundError, BackendUnavailableError) as exc:
         return fail(str(exc))
     for row in summary.itertuples():
-        print(
-            f"{row.pipeline:>24}: {row.fps:7.1f} frames/s, correct {row.correct_rate:.0%}, "
-            f"recall {row.recall:.3f}, deflection error {row.deflection_err_mm:.2f} mm"
-        )
+        if row.refused_samples == row.samples:  # no answer to rate: the counts say why
+            accuracy = f"refused all {row.samples} samples, no rates"
+        else:
+            accuracy = (
+                f"correct {row.correct_rate:.0%}, recall {row.recall:.3f}, deflection error "
+                f"{row.deflection_err_mm:.2f} mm"
+            )
+        print(f"{row.pipeline:>24}: {row.fps:7.1f} frames/s, {accuracy}")
     print(f"wrote {out}/report.md")
     return 0
 

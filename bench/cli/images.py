@@ -8,12 +8,12 @@ import math
 import sys
 from pathlib import Path
 
-from bench.cli.args import check_out_folder
+from bench.cli.args import RUNS, check_out_folder
 from bench.cli.evaluate import VARIANT_HELP, pipelines
 from scenes.calibration_import import FORMATS
 from scenes.validation import FieldError
 
-DEFAULT_OUT = Path("results") / "detect-images"
+DEFAULT_OUT = RUNS / "detect-images"
 #: More images than this get a progress bar (on a terminal).
 PROGRESS_MIN_IMAGES = 3
 DESCRIPTION = """\

@@ -1,7 +1,8 @@
 """The ``whiskerbench`` command line: parse, call an importable function, report.
 
 Bad input gets one line naming the option and the allowed range, exit code 2, nothing written;
-an internal error a short bug report and exit code 1; Ctrl-C exit code 130 and what is kept.
+an internal error a short bug report and exit code 1; Ctrl-C exit code 130 and what is kept;
+stdout closed early (``| head``) a quiet exit code 141, as a shell reports SIGPIPE.
 """
 
 from __future__ import annotations
@@ -10,11 +11,11 @@ import argparse
 import dataclasses
 import re
 import sys
-import traceback
 from pathlib import Path
 
 from bench.cli import limits
 from bench.cli.args import (
+    RUNS,
     add_executor_options,
     check_executor,
     check_out_folder,
@@ -34,12 +35,13 @@ from bench.cli.evaluate import (
     cmd_detect,
     cmd_score,
 )
+from bench.cli.exits import bug_report, end_quietly, stdout_closed
 from bench.cli.images import add_images_parser
 from bench.cli.ladder import add_ladder_parser
 from bench.cli.lens import add_lens_parser
 from bench.cli.render import add_bench_render_parser
 from bench.cli.scale import add_scale_options, cmd_bench_scale
-from bench.common.manifest import input_digests
+from bench.common.manifest import input_digests, whiskerbench_version
 from bench.study.config import (
     DEFAULT_ALPHAS_DEG,
     DEFAULT_PHIS_DEG,
@@ -80,8 +82,6 @@ OPTION_OF_FIELD = {
     "threads": "--threads",
     "scene": "--scene",
 }
-#: Frames of the traceback an internal error's bug report shows.
-BUG_REPORT_FRAMES = 4
 
 
 class _Parser(argparse.ArgumentParser):
@@ -230,7 +230,7 @@ def study_config(args: argparse.Namespace) -> StudyConfig:
 
 
 def default_out(config: StudyConfig, quick: bool) -> Path:
-    """``results/detectability/<name>``: ``default``, ``quick`` or ``custom-<hash>`` of the grid,
+    """``runs/detectability/<name>``: ``default``, ``quick`` or ``custom-<hash>`` of the grid,
     then the detector and the family where they are not the defaults (``quick-locus``)."""
     default = StudyConfig()
     plain = dataclasses.replace(
@@ -255,7 +255,7 @@ def default_out(config: StudyConfig, quick: bool) -> Path:
         name = f"custom-{digest}"
     extra = [config.detector.backend] if config.detector.backend != "opencv" else []
     extra += [config.dictionary] if config.dictionary != default.dictionary else []
-    return Path("results") / "detectability" / "-".join([name, *extra])
+    return RUNS / "detectability" / "-".join([name, *extra])
 
 
 def _cmd_detectability(args: argparse.Namespace) -> int:
@@ -315,10 +315,11 @@ def _cmd_bench_scale(args: argparse.Namespace) -> int:
 
 def _parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="whiskerbench", description=__doc__.splitlines()[0])
+    parser.add_argument("--version", action="version", version=f"%(prog)s {whiskerbench_version()}")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
     study = sub.add_parser("detectability", help="rerun the marker-size detectability study")
     _add_study_options(study)
-    study.add_argument("--out", help="run folder (default results/detectability/<name>)")
+    study.add_argument("--out", help=f"run folder (default {RUNS}/detectability/<name>)")
     study.add_argument(
         "--save-images",
         action="store_true",
@@ -394,19 +395,6 @@ def command_name(args: argparse.Namespace) -> str:
     return " ".join([args.command, *(getattr(args, k) for k in subcommands if hasattr(args, k))])
 
 
-def bug_report(command: str, exc: BaseException) -> str:
-    """An internal error in a few lines: what, a request, and the innermost frames."""
-    frames = traceback.extract_tb(exc.__traceback__)[-BUG_REPORT_FRAMES:]
-    detail = str(exc).splitlines()[0] if str(exc) else ""
-    return "\n".join(
-        [
-            f"whiskerbench {command}: internal error: {type(exc).__name__}: {detail}",
-            "please report this with the command line; traceback:",
-            *(f'  File "{f.filename}", line {f.lineno}, in {f.name}: {f.line}' for f in frames),
-        ]
-    )
-
-
 def _check_variant(requested: str | None) -> None:
     """A ``--variant`` this machine cannot run (cuda_ad_rgb without a GPU, llvm_ad_rgb without
     libLLVM) is refused before any command claims a folder; setting it here is what the command
@@ -425,6 +413,18 @@ def _check_variant(requested: str | None) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run one command; its exit code. A reader that closes stdout early (``| head -1``)
+    wanted no more output: the command ends quietly, with SIGPIPE's shell exit code."""
+    try:
+        try:
+            return _main(argv)
+        finally:
+            sys.stdout.flush()  # a reader gone shows here, not at interpreter exit
+    except BrokenPipeError:
+        return end_quietly()
+
+
+def _main(argv: list[str] | None) -> int:
     parser = _parser()
     args = parser.parse_args(argv)
     command = command_name(args)
@@ -441,6 +441,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"whiskerbench {command}: interrupted: {args.kept}", file=sys.stderr)
         return 130
     except Exception as exc:  # a bug, not the input: say so, briefly
+        if isinstance(exc, BrokenPipeError) and stdout_closed():
+            raise  # not a bug: main ends quietly
         print(bug_report(command, exc), file=sys.stderr)
         return 1
 

@@ -14,6 +14,7 @@ import json
 import platform
 import sys
 import time
+import tomllib
 from collections.abc import Iterable, Mapping
 from datetime import UTC, datetime
 from importlib import metadata
@@ -25,8 +26,9 @@ from scenes.validation import FieldError
 
 SCHEMA = 1
 MANIFEST = "manifest.json"
+#: This project's distribution name (pyproject.toml's ``[project] name``).
+DISTRIBUTION = "whiskerbench"
 PACKAGES = (
-    "whiskerbench",
     "mitsuba",
     "drjit",
     "opencv-contrib-python-headless",
@@ -38,9 +40,23 @@ PACKAGES = (
 )
 
 
+def whiskerbench_version() -> str:
+    """This project's version: the installed distribution's, else (a source tree run without
+    ``pip install``, e.g. ``PYTHONPATH=.``) the one its pyproject.toml declares."""
+    try:
+        return metadata.version(DISTRIBUTION)
+    except metadata.PackageNotFoundError:
+        pass
+    pyproject = Path(__file__).resolve().parents[2] / "pyproject.toml"
+    try:
+        return tomllib.loads(pyproject.read_text())["project"]["version"]
+    except (OSError, KeyError, tomllib.TOMLDecodeError):  # package files copied on their own
+        return "unknown"
+
+
 def package_versions() -> dict[str, str]:
-    """Python's and every package's version that shapes the results."""
-    versions = {"python": platform.python_version()}
+    """Python's and every package's version that shapes the results, this project's first."""
+    versions = {"python": platform.python_version(), DISTRIBUTION: whiskerbench_version()}
     for name in PACKAGES:
         try:
             versions[name] = metadata.version(name)

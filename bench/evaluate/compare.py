@@ -67,15 +67,23 @@ OWN_POSE = ("own_rot_err_deg", "own_trans_err_mm")
 
 
 def summarize(name: str, table: pd.DataFrame) -> dict:
-    """One variant's dataset accuracy from its ``samples.csv`` table."""
+    """One variant's dataset accuracy from its ``samples.csv`` table.
+
+    A refused sample counts as not correct. A variant that refuses every sample has no rate
+    and no error (NaN; a correct rate of 0 would rank it with one that answers every sample
+    wrongly): its row keeps the counts, ``samples`` and ``refused_samples``, which say why."""
+    refused = int((table["outcome"] == "refused").sum())
+    visible = table["markers_visible"].sum()  # 0 when every sample is refused
     return {
         "pipeline": name,
         "samples": len(table),
-        "correct_rate": float((table["outcome"] == "correct").mean()),
+        "correct_rate": float((table["outcome"] == "correct").mean())
+        if refused < len(table)
+        else float("nan"),
         "false_positive_samples": int(table["outcome"].str.contains("false_positive").sum()),
         "false_negative_samples": int(table["outcome"].str.contains("false_negative").sum()),
-        "refused_samples": int((table["outcome"] == "refused").sum()),
-        "recall": float(table["markers_found"].sum() / table["markers_visible"].sum()),
+        "refused_samples": refused,
+        "recall": float(table["markers_found"].sum() / visible) if visible else float("nan"),
         "false_detections": int(table["false_detections"].sum()),
         "deflection_err_mm": float(table["deflection_err_mm"].median()),
         "corner_err_px": float(table["corner_err_px"].median()),
@@ -88,13 +96,16 @@ def summarize(name: str, table: pd.DataFrame) -> dict:
 
 
 def pareto_front(speed: np.ndarray, accuracy: np.ndarray, higher_better: bool) -> np.ndarray:
-    """(N,) bool: points no other point beats in both speed and accuracy (ties do not beat)."""
+    """(N,) bool: points no other point beats in both speed and accuracy (ties do not beat).
+
+    A point without an accuracy (NaN: its pipeline refused every sample) is not on the front
+    and beats no other."""
     acc = np.asarray(accuracy, float) * (1 if higher_better else -1)
     speed = np.asarray(speed, float)
-    front = np.ones(len(speed), bool)
+    front = np.isfinite(acc)
     for i in range(len(speed)):
         better = (speed >= speed[i]) & (acc >= acc[i]) & ((speed > speed[i]) | (acc > acc[i]))
-        front[i] = not better.any()
+        front[i] &= not better.any()
     return front
 
 
@@ -102,15 +113,18 @@ def plot_pareto(summary: pd.DataFrame, path: Path) -> None:
     """Accuracy against speed, one panel per accuracy measure, the Pareto front drawn.
 
     The front is computed over every pipeline, peers included; peers are hollow diamonds, the
-    project's pipelines filled circles (red on the front, grey behind it)."""
+    project's pipelines filled circles (red on the front, grey behind it). A pipeline without
+    a value for a measure (it refused every sample) cannot be placed: the panel's title names
+    it, so no pipeline drops out of the chart unsaid."""
     fig, axes = plt.subplots(1, len(ACCURACY), figsize=(5 * len(ACCURACY), 4), dpi=110)
     speed = summary["fps"].to_numpy()
     peer = summary["pipeline"].map(is_peer).to_numpy(bool)
     for ax, (column, label, higher) in zip(axes, ACCURACY, strict=True):
-        acc = summary[column].to_numpy()
+        acc = summary[column].to_numpy(float)
+        placed = np.isfinite(acc)
         front = pareto_front(speed, acc, higher)
         for mine, where, colour in (
-            (~front, "behind the front", "#9e9e9e"),
+            (placed & ~front, "behind the front", "#9e9e9e"),
             (front, "Pareto front", "#d62728"),
         ):
             ax.scatter(speed[mine & ~peer], acc[mine & ~peer], c=colour, s=45, label=where)
@@ -118,15 +132,20 @@ def plot_pareto(summary: pd.DataFrame, path: Path) -> None:
                        edgecolors=colour, linewidths=1.6, label=f"peer, {where}")  # fmt: skip
         order = np.argsort(speed[front])
         ax.plot(speed[front][order], acc[front][order], "-", c="#d62728", lw=1)
-        for x, y, name in zip(speed, acc, summary["pipeline"], strict=True):
+        names = summary["pipeline"].to_numpy()
+        for x, y, name in zip(speed[placed], acc[placed], names[placed], strict=True):
             ax.annotate(name, (x, y), fontsize=7, xytext=(4, 3), textcoords="offset points")
-        ax.set_xscale("log")
+        if not placed.all():
+            ax.set_title(f"no value: {', '.join(names[~placed])}", fontsize=8)
+        if placed.any():  # an empty panel has no range to log-scale
+            ax.set_xscale("log")
         ax.set_xlabel("frames/s, full 2592x1944 frames, one core")
         ax.set_ylabel(label + ("" if higher else ", lower is better"))
         ax.grid(alpha=0.3)
     handles, labels = axes[0].get_legend_handles_labels()
     shown = [(h, t) for h, t in zip(handles, labels, strict=True) if len(h.get_offsets())]
-    axes[0].legend(*zip(*shown, strict=True), fontsize=7)
+    if shown:  # none when every pipeline refused every sample
+        axes[0].legend(*zip(*shown, strict=True), fontsize=7)
     fig.suptitle("accuracy against speed (hollow diamonds: peer detectors)", fontsize=10)
     fig.tight_layout()
     with atomic_path(path) as tmp:
@@ -295,6 +314,7 @@ def render_report(
         *[c for c in (*OWN_POSE, "failed_frames") if c in summary],
         "false_positive_samples",
         "false_negative_samples",
+        "refused_samples",
         "false_detections",
     ]
     lines = [
@@ -312,6 +332,7 @@ def render_report(
         "",
         *[f"- {line}" for line in leader_lines(leads)],
         *[f"- {line}" for line in failed_frame_lines(tables)],
+        *[f"- {line}" for line in refused_lines(summary)],
         "",
         "## Accuracy against speed",
         "",
@@ -339,6 +360,17 @@ def render_report(
             )
         lines += [f"![{name} {g}](grids/{g})" for g in grids.get(name, [])] + [""]
     return "\n".join(lines) + "\n"
+
+
+def refused_lines(summary: pd.DataFrame) -> list[str]:
+    """A line per pipeline that refused every sample: it has no accuracy measure, so it leads
+    on none and has no point in the accuracy charts; the line says why instead."""
+    everything = summary[summary["refused_samples"] == summary["samples"]]
+    return [
+        f"{row.pipeline}: refused all {row.samples} samples (why: `refused_reason` in its "
+        "scores' samples.csv), so it has no accuracy measure"
+        for row in everything.itertuples()
+    ]
 
 
 def failed_frame_lines(tables: dict[str, pd.DataFrame]) -> list[str]:

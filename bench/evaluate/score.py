@@ -182,6 +182,20 @@ def _none_twin(record: dict, records: dict[str, dict]) -> tuple[str | None, str]
     return (twin["sample_id"], SAME_LAYOUT_TWIN) if groups[0] == groups[1] else (None, "")
 
 
+#: The columns of ``samples.csv`` that only a scored sample fills (a refused one has
+#: ``refused_reason`` instead). A table gets every one, NaN where no sample filled it, so a
+#: pipeline that refuses every sample still has a table its readers (``score``'s summary line,
+#: ``compare``) can read.
+SCORED_COLUMNS = (
+    "threshold_mm", "threshold_source", "estimated_gaps", "unseen_markers",
+    "found", "missed", "false_positives",
+    "markers_visible", "markers_found", "recall", "false_detections",
+    "corner_err_px", "rot_err_deg", "trans_err_mm", "own_rot_err_deg", "own_trans_err_mm",
+    "deflection_err_mm", "contact_precision", "contact_recall",
+    "frames_per_s", "failed_frames", "failed_frame_ids", "refine_failures",
+)  # fmt: skip
+
+
 @dataclass(frozen=True)
 class _SampleTask:
     """One sample to detect on and score (an executor task: picklable, idempotent)."""
@@ -270,10 +284,10 @@ def score_dataset(
     """Run ``config`` on every sample and score it; write ``samples.csv`` and the grids.
 
     A sample the pipeline refuses (no no-contact frames at its start) gets the outcome
-    ``refused`` and its reason, not scores. The fixed foliage threshold of a sample is the
-    highest deflection that the same pipeline measures on its no-branch twin (SPEC 3 step 4);
-    without a twin, or for an ``online`` pipeline, it is inferred from the sample itself
-    (column ``threshold_source``).
+    ``refused`` and its reason, not scores (NaN in :data:`SCORED_COLUMNS`). The fixed foliage
+    threshold of a sample is the highest deflection that the same pipeline measures on its
+    no-branch twin (SPEC 3 step 4); without a twin, or for an ``online`` pipeline, it is
+    inferred from the sample itself (column ``threshold_source``).
 
     The detector is set to the dataset's marker family (:func:`for_family`: a backend that
     cannot detect it is refused). Before any work ``out_dir`` is claimed (ValueError if another
@@ -322,6 +336,7 @@ def score_dataset(
                 if threshold is not None:
                     thresholds[row["sample_id"]] = threshold
     table = pd.DataFrame(rows).sort_values("sample_id").reset_index(drop=True)
+    table = table.reindex(columns=[*table, *(c for c in SCORED_COLUMNS if c not in table)])
     with atomic_path(out_dir / "samples.csv") as tmp:
         table.to_csv(tmp, index=False)
     for (protocol, lighting), part in table.groupby(["protocol", "lighting"]):
