@@ -173,15 +173,20 @@ class SweepConfig:
     def psf_scales(self) -> tuple[float, ...]:
         """The lens-sharpness axis' levels: the camera's band (all its study levels, or its
         ends), in the scale of the table as calibrated, ascending."""
-        band = self.camera.band
-        levels = band.psf_levels() if self.psf_axis == "levels" else band.psf_ends
-        return tuple(sorted(set(levels)))
+        levels = self.camera.band.psf_levels()
+        return levels if self.psf_axis == "levels" else tuple(sorted(set(self.band_ends)))
+
+    @property
+    def band_ends(self) -> tuple[float, float]:
+        """The camera band's (low, high) PSF scale, as its study levels name them."""
+        levels = self.camera.band.psf_levels()
+        return levels[0], levels[-1]
 
     def band_end_sweeps(self) -> tuple[SweepConfig, ...]:
         """The boundary axes rerun with the base point's PSF at each end of the camera's band
         (``band_seeds`` seeds each): where a leader at the nominal PSF must still lead. None
         where the band is the nominal point itself (a profile without a band)."""
-        ends = [e for e in dict.fromkeys(self.camera.band.psf_ends) if e != self.base_psf_scale]
+        ends = [e for e in dict.fromkeys(self.band_ends) if e != self.base_psf_scale]
         return tuple(
             dataclasses.replace(self, base_psf_scale=e, axes=BOUNDARY_AXES, seeds=self.band_seeds)
             for e in ends
