@@ -237,6 +237,7 @@ def run_compare(
         "band": None
         if not band_tables
         else {
+            "range": sweep.band_ends,
             "ends": tuple(band_tables),
             "sweeps_s": t_band - t_sweeps,
             "band_sweeps_s": band_s,
@@ -383,15 +384,16 @@ def _band_section(leads: pd.DataFrame, meta: dict) -> list[str]:
             "across one.",
             "",
         ]
-    low, high = min(band["ends"]), max(band["ends"])
+    low, high = band["range"]
+    ends = " and at ".join(f"{e:g}" for e in band["ends"])  # the nominal end is not rerun
     return [
         "## Across the lens' uncertain blur",
         "",
         f"The camera twin's PSF is known only within its profile's band: {low:g} to {high:g} "
         "times the table as calibrated (1). A lead *holds across the band* when a leader at the "
-        "nominal PSF (one of them, in a tie) also leads at both ends (`leaders.csv`: "
+        "nominal PSF (one of them, in a tie) also leads at the ends (`leaders.csv`: "
         "`holds_across_band`, `band_leaders`). The evidence: for the failure boundaries, the "
-        f"sweeps' boundary axes run again with the base point's PSF at {low:g} and at {high:g} "
+        f"sweeps' boundary axes run again with the base point's PSF at {ends} "
         f"({band['band_seeds']} seeds x {band['images']} images a level, against "
         f"{band['seeds']} seeds at the nominal PSF; {band['band_sweeps_s']:.0f} s more, against "
         f"{band['sweeps_s']:.0f} s for the nominal sweeps; `sweeps_band_ends.csv`, "
