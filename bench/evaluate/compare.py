@@ -394,18 +394,22 @@ def _band_section(leads: pd.DataFrame, meta: dict) -> list[str]:
         "nominal PSF (one of them, in a tie) also leads at the ends (`leaders.csv`: "
         "`holds_across_band`, `band_leaders`). The evidence: for the failure boundaries, the "
         f"sweeps' boundary axes run again with the base point's PSF at {ends} "
-        f"({band['band_seeds']} seeds x {band['images']} images a level, against "
-        f"{band['seeds']} seeds at the nominal PSF; {band['band_sweeps_s']:.0f} s more, against "
+        f"({_seeds(band['band_seeds'])} x {band['images']} images a level, against "
+        f"{_seeds(band['seeds'])} at the nominal PSF; {band['band_sweeps_s']:.0f} s more, against "
         f"{band['sweeps_s']:.0f} s for the nominal sweeps; `sweeps_band_ends.csv`, "
         "`boundaries_band_ends.csv`). The dataset's recall, corner and pose errors were measured "
         f"at one PSF scale ({meta['dataset_psf_scale']:g}); whether their leads hold is judged "
         "on the sweeps' lens-sharpness axis instead: one marker at the base point "
-        f"({band['base']}), {band['seeds']} seeds x {band['images']} images at each end, not "
+        f"({band['base']}), {_seeds(band['seeds'])} x {band['images']} images at each end, not "
         "the dataset's frames. Frames/s and the branch outcome are not judged.",
         "",
         *[f"- {line}" for line in band_lines(leads)],
         "",
     ]
+
+
+def _seeds(count: int) -> str:
+    return f"{count} seed" + ("" if count == 1 else "s")
 
 
 def failed_frame_lines(tables: dict[str, pd.DataFrame]) -> list[str]:

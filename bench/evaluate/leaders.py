@@ -174,7 +174,11 @@ def band_lines(table: pd.DataFrame) -> list[str]:
         if r.leader and not _known(r.holds_across_band)
     ]
     if judged and unjudged:
-        lines.append("Not judged across the band (no evidence there): " + "; ".join(unjudged) + ".")
+        lines.append(
+            "Not judged across the band (no evidence, or no pipeline with a value at an end): "
+            + "; ".join(unjudged)
+            + "."
+        )
     return lines
 
 
