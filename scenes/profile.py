@@ -35,6 +35,8 @@ DEMOSAIC_METHODS = ("bilinear", "edge_aware", "vng")
 TRANSFER_CURVES = ("srgb", "linear")
 CODECS = ("none", "mjpeg")
 CHROMA_SUBSAMPLING = ("4:4:4", "4:2:2", "4:2:0")
+#: Largest factor on a PSF table (:meth:`PsfTable.scaled`, the band's high end).
+MAX_PSF_SCALE = 10.0
 
 
 class ProfileError(FieldError):
@@ -146,7 +148,7 @@ class PsfTable(_FieldTable):
 
     def scaled(self, factor: float) -> PsfTable:
         """Every width times ``factor``: the sensitivity band's lever on the uncertain optics."""
-        factor = _number("psf_scale", factor, 0.0, 10.0)
+        factor = _number("psf_scale", factor, 0.0, MAX_PSF_SCALE)
         return dataclasses.replace(
             self,
             sigma_radial_px=tuple(s * factor for s in self.sigma_radial_px),
@@ -258,7 +260,7 @@ class Band:
         if not isinstance(ends, list | tuple) or len(ends) != 2:
             raise ProfileError("band.psf_scale", f"{ends!r}: needs [low, high]")
         low = _number("band.psf_scale", ends[0], 0.0, 1.0)
-        high = _number("band.psf_scale", ends[1], 1.0, 10.0)
+        high = _number("band.psf_scale", ends[1], 1.0, MAX_PSF_SCALE)
         object.__setattr__(self, "psf_scale", (low, high))
 
     def psf_levels(self) -> tuple[float, ...]:
@@ -301,6 +303,15 @@ class CameraProfile:
     stream: Stream = field(default_factory=Stream)
     band: Band = field(default_factory=Band)
     sources: dict[str, str] = field(default_factory=dict)
+    #: The factor ``psf`` carries over the table as calibrated, the one ``band`` is stated
+    #: around: :meth:`with_psf_scale` multiplies both, so a profile written out after scaling
+    #: (a dataset's ``camera.json`` at ``--psf-scale``) still says where its band lies. 1: the
+    #: table as written; only then is it left out of the JSON (files and hashes as before).
+    psf_scale: float = 1.0
+
+    def __post_init__(self) -> None:
+        scale = _number("psf_scale", self.psf_scale, 0.0, MAX_PSF_SCALE**2)
+        object.__setattr__(self, "psf_scale", scale)
 
     @property
     def crop_grid_px(self) -> int:
@@ -310,7 +321,19 @@ class CameraProfile:
         return math.lcm(self.stream.block_px, tile)
 
     def with_psf_scale(self, factor: float) -> CameraProfile:
-        return dataclasses.replace(self, psf=self.psf.scaled(factor))
+        """Every PSF width times ``factor`` (0..10), on top of any scale the profile carries."""
+        psf = self.psf.scaled(factor)
+        return dataclasses.replace(self, psf=psf, psf_scale=self.psf_scale * factor)
+
+    def at_psf_scale(self, scale: float) -> CameraProfile:
+        """The profile with its PSF ``scale`` times the table as calibrated: the scale the
+        band's levels are stated in, whatever scale this profile already carries."""
+        if scale == self.psf_scale:
+            return self
+        if self.psf_scale == 0:
+            raise ProfileError("psf_scale", "0: a zero PSF cannot be scaled back to the table")
+        psf = self.psf.scaled(scale / self.psf_scale)
+        return dataclasses.replace(self, psf=psf, psf_scale=float(scale))
 
     def with_lens(self, lens: FisheyeCamera) -> CameraProfile:
         return dataclasses.replace(self, lens=lens)
@@ -328,6 +351,8 @@ class CameraProfile:
             section = dataclasses.asdict(getattr(self, key))
             out[key] = {k: list(v) if isinstance(v, tuple) else v for k, v in section.items()}
         out["sources"] = dict(self.sources)
+        if self.psf_scale != 1:
+            out["psf_scale"] = self.psf_scale
         return out
 
     @classmethod
@@ -347,7 +372,8 @@ class CameraProfile:
             raise ProfileError(
                 "version", f"{data.get('version')!r}: this whiskerbench reads version {VERSION}"
             )
-        known = {"format", "version", "name", "description", "lens", "sources", *_SECTIONS}
+        known = {"format", "version", "name", "description", "lens", "sources", "psf_scale"}
+        known |= set(_SECTIONS)
         unknown = sorted(set(data) - known)
         if unknown:
             raise ProfileError(unknown[0], f"unknown field; allowed: {', '.join(sorted(known))}")
@@ -366,7 +392,10 @@ class CameraProfile:
             isinstance(k, str) and isinstance(v, str) for k, v in sources.items()
         ):
             raise ProfileError("sources", "must map field names to source strings")
-        return cls(name=name, description=str(description), sources=sources, **kwargs)
+        scale = data.get("psf_scale", 1.0)
+        return cls(
+            name=name, description=str(description), sources=sources, psf_scale=scale, **kwargs
+        )
 
 
 def _lens(data: Any) -> FisheyeCamera:

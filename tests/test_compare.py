@@ -60,7 +60,47 @@ def test_compare_writes_a_report_with_every_variant(rendered_pair, tmp_path):
     assert [p["name"] for p in sweep_config["pipelines"]] == ["paper", "fast/window=3-23-10"]
     manifest = check_manifest(out, "compare")
     assert {"report.md", "sweeps.csv", "sweep_config.json"} <= set(manifest["outputs"])
+    assert {"sweeps_band_ends.csv", "boundaries_band_ends.csv"} <= set(manifest["outputs"])
     assert str(rendered_pair / "manifest.json") in manifest["inputs"]
+    _check_the_band(out, sweep, sweeps, len(variants))
+
+
+def _check_the_band(out, sweep, sweeps: pd.DataFrame, pipelines: int) -> None:
+    """The sweeps through the prototype twin: the lens-sharpness axis at its band's ends, the
+    boundary axes again at each end, and leaders.csv's verdicts follow the tables beside it."""
+    from bench.evaluate.sweep_config import BOUNDARY_AXES
+
+    low, high = sweep.camera.band.psf_ends
+    assert sweep.camera.name == "prototype" and low < 1 < high
+    lens = sweeps[sweeps["axis"] == "psf_scale"]
+    assert sorted(set(lens["level_value"])) == [low, high]  # QUICK: the band's ends
+    ends = pd.read_csv(out / "sweeps_band_ends.csv")
+    assert set(ends["psf_scale"]) == {low, high} and set(ends["axis"]) == set(BOUNDARY_AXES)
+    assert len(ends) == 2 * pipelines * len(sweep.band_end_sweeps()[0].points())
+    leads = pd.read_csv(out / "leaders.csv").set_index("measure")
+    assert pd.isna(leads.loc["fps", "holds_across_band"])  # speed is not judged
+    assert pd.isna(leads.loc["psf_scale", "holds_across_band"])  # it spans the band itself
+    # recall (from the dataset at one scale): the leaders at each end are the lens axis' there
+    expected = []
+    for end in (low, high):
+        recall = lens[lens["level_value"] == end].groupby("pipeline", sort=False)["recall"].mean()
+        expected.append(f"{end:g}: " + ", ".join(recall.index[recall == recall.max()]))
+    assert leads.loc["recall", "band_leaders"] == "; ".join(expected)
+    # alpha: the leaders at each end are those of that end's rerun (last level kept)
+    edges = pd.read_csv(out / "boundaries_band_ends.csv")
+    alpha = edges[edges["axis"] == "alpha_deg"]
+    judged = leads.loc["alpha_deg"]
+    holders = set(judged["leader"].split(", "))
+    for end in (low, high):
+        kept = alpha[alpha["psf_scale"] == end].set_index("pipeline")["last_ok"].fillna(-np.inf)
+        best = [name for name in kept.index if kept[name] == kept.max()]
+        assert f"{end:g}: {', '.join(best)}" in judged["band_leaders"]
+        holders &= set(best)
+    assert judged["holds_across_band"] == bool(holders)
+    report = (out / "report.md").read_text()
+    assert "## Across the lens' uncertain blur" in report
+    assert f"{low:g} to {high:g} times the table as calibrated" in report
+    assert "Leads that hold across the band" in report or "do not hold" in report
 
 
 @pytest.mark.slow
@@ -147,6 +187,59 @@ def test_who_leads_on_a_hand_made_summary():
     t = leaders(faster).set_index("measure")
     assert t.loc["fps", "leader"] == "locus" and t.loc["fps", "best_project"] == "fast"
     assert "alpha_deg" not in t.index  # no sweeps, no boundary rows
+
+
+def _hand_band() -> dict[str, dict[float, pd.Series]]:
+    """Band-end values for three measures of :func:`_hand_summary` / :func:`_hand_edges`:
+    recall's tied lead keeps one of its leaders at both ends, corner error's changes hands at
+    the high end, alpha's tie at the low end keeps its leader."""
+    names = ["paper", "fast", "locus", "robust/detector=locus"]
+    nan = float("nan")
+    return {
+        "recall": {
+            0.5: pd.Series([1.0, 1.0, 1.0, 0.99], names),
+            1.5: pd.Series([0.2, 0.1, 0.97, 0.96], names),
+        },
+        "corner_err_px": {
+            0.5: pd.Series([0.3, 0.4, 0.2, 0.08], names),
+            1.5: pd.Series([nan, nan, 0.3, 0.35], names),  # NaN: not found, not a value
+        },
+        "alpha_deg": {
+            0.5: pd.Series([92.0, 92.0, 40.0, 92.0], names),
+            1.5: pd.Series([92.0, 40.0, -np.inf, 40.0], names),
+        },
+    }
+
+
+def test_whether_a_lead_holds_across_the_band():
+    from bench.evaluate.leaders import band_lines, leader_lines, leaders
+
+    t = leaders(_hand_summary(), _hand_edges(), _hand_band()).set_index("measure")
+    recall = t.loc["recall"]  # locus and robust/detector=locus tie at 1; locus leads at both
+    assert recall["holds_across_band"] is True
+    assert recall["band_leaders"] == "0.5: paper, fast, locus; 1.5: locus"
+    corner = t.loc["corner_err_px"]  # robust/detector=locus leads at 1 and 0.5, not at 1.5
+    assert corner["holds_across_band"] is False
+    assert corner["band_leaders"] == "0.5: robust/detector=locus; 1.5: locus"
+    alpha = t.loc["alpha_deg"]  # paper keeps its (tied) lead at both ends, fast does not
+    assert alpha["holds_across_band"] is True and alpha["band_leaders"].endswith("1.5: paper")
+    for measure in ("fps", "own_rot_err_deg", "lighting"):  # no evidence: not judged
+        assert t.loc[measure, "holds_across_band"] is None
+        assert t.loc[measure, "band_leaders"] == ""
+    lines = leader_lines(leaders(_hand_summary(), _hand_edges(), _hand_band()))
+    assert lines[2].endswith(
+        "; does not hold across the band (leading at PSF 0.5: robust/detector=locus; 1.5: locus)"
+    )
+    assert "across the band" not in lines[0]  # frames/s: not judged
+    said = band_lines(t.reset_index())
+    assert said[0] == (
+        "Leads that hold across the band: marker recall (locus, robust/detector=locus); "
+        f"{t.loc['alpha_deg', 'label']} (paper, fast)."
+    )
+    assert said[1].startswith("Leads that do not hold across the band: corner error (px, median)")
+    assert "robust/detector=locus at the nominal PSF" in said[1]
+    assert said[2].startswith("Not judged across the band") and "frames/s" in said[2]
+    assert band_lines(leaders(_hand_summary(), _hand_edges())) == []  # no band, no verdicts
 
 
 def _without_peers(monkeypatch):

@@ -71,6 +71,26 @@ def test_psf_scale_multiplies_every_width():
     assert s.psf.theta_deg == p.psf.theta_deg and s.lens == p.lens
 
 
+def test_a_scaled_profile_records_its_scale_and_finds_the_band_levels_from_it(tmp_path):
+    """A profile written after scaling (a dataset's camera.json) says by how much, so the band
+    (stated around the table as calibrated) still lands where the calibrated profile puts it."""
+    p = load_profile("prototype")
+    assert p.psf_scale == 1.0 and "psf_scale" not in p.to_json()  # files as before at 1
+    s = p.with_psf_scale(1.5).with_psf_scale(0.5)
+    assert s.psf_scale == pytest.approx(0.75) and s.band == p.band
+    path = tmp_path / "scaled.json"
+    path.write_text(json.dumps(s.to_json()))
+    again = load_profile(path)
+    assert again == s and again.to_json()["psf_scale"] == pytest.approx(0.75)
+    low = again.at_psf_scale(p.band.psf_ends[0])
+    assert low.psf_scale == p.band.psf_ends[0]
+    expected = np.array(p.with_psf_scale(p.band.psf_ends[0]).psf.sigma_radial_px)
+    assert np.allclose(low.psf.sigma_radial_px, expected, rtol=1e-12)
+    assert p.at_psf_scale(1.0) is p
+    with pytest.raises(ProfileError, match="psf_scale"):
+        p.with_psf_scale(0.0).at_psf_scale(1.0)  # nothing left to scale back
+
+
 def test_table_interpolates_and_holds_past_the_ends():
     t = PsfTable(theta_deg=(0.0, 90.0), sigma_radial_px=(0.5, 1.5), sigma_tangential_px=(0.5, 1.0))
     r, tg = t.at(np.array([45.0, 120.0]))
@@ -107,6 +127,8 @@ def _good() -> dict:
         (lambda d: d["stream"].update(chroma_subsampling="4:1:1"), "stream.chroma_subsampling"),
         (lambda d: d["lens"]["model"].update(fx_px=-1), "lens"),
         (lambda d: d.update(sources=["x"]), "sources"),
+        (lambda d: d.update(psf_scale=-1), "psf_scale"),
+        (lambda d: d.update(psf_scale="2"), "psf_scale"),
     ],
 )  # fmt: skip
 def test_a_bad_field_is_named(edit, field, tmp_path):

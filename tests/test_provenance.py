@@ -11,6 +11,7 @@ from pathlib import Path
 import pytest
 
 from pipeline.presets import PRESETS
+from scenes.profile import load_profile
 
 FIELDS = {
     "kind", "schema", "config", "seed", "versions", "variant", "inputs", "outputs", "started",
@@ -102,3 +103,15 @@ def test_bench_pipeline_manifest(variant, tmp_path) -> None:
     manifest = check_manifest(tmp_path, "bench-pipeline")
     assert set(manifest["outputs"]) == {"bench.json"}
     assert manifest["config"]["pipelines"] == [PRESETS["paper"].to_json()]
+    # the same frames at the prototype band's ends: OpenCV reads more through the sharper lens
+    figures = json.loads((tmp_path / "bench.json").read_text())
+    low, high = load_profile("prototype").band.psf_ends
+    ends = figures["band_ends"]
+    assert set(ends) == {f"{low:g}", f"{high:g}"}
+    sharp, blurred = ends[f"{low:g}"][0], ends[f"{high:g}"][0]
+    assert sharp["pipeline"] == blurred["pipeline"] == "paper"
+    assert sharp["recall"] > figures["pipelines"][0]["recall"] > blurred["recall"]
+    leads = {row["measure"]: row for row in figures["leaders"]}
+    assert leads["recall"]["holds_across_band"] is True  # one pipeline leads everywhere
+    assert leads["recall"]["band_leaders"] == f"{low:g}: paper; {high:g}: paper"
+    assert leads["fps"]["holds_across_band"] is None  # speed is not judged

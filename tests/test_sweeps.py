@@ -1,17 +1,18 @@
 """One-axis sweeps: rows, physics the sweep must show, boundaries, validation, the plot."""
 
+import dataclasses
 import math
 
 import numpy as np
 import pandas as pd
 import pytest
 
-from bench.evaluate.sweep_config import AXES, SweepConfig
+from bench.evaluate.sweep_config import AXES, BOUNDARY_AXES, QUICK_SWEEP, SweepConfig
 from bench.evaluate.sweep_report import boundaries, plot_sweeps
 from bench.evaluate.sweeps import run_sweeps
 from pipeline.presets import PRESETS
 from renderers.motion_blur import motion_blur, motion_kernel
-from scenes.profile import load_profile
+from scenes.profile import Band, load_profile
 
 # The mechanics are tested on the ideal camera, whose behaviour at these points is known.
 TINY = SweepConfig(
@@ -41,7 +42,8 @@ def rows(table, axis, level, pipeline):
 
 @pytest.mark.slow
 def test_one_row_per_axis_level_seed_pipeline(table):
-    assert len(table) == 5 * 2 * 2 * 2
+    # five axes of two levels; the ideal camera's band is the nominal PSF alone (one level)
+    assert len(table) == (5 * 2 + 1) * 2 * 2
     keys = table[["axis", "level", "seed", "pipeline"]].drop_duplicates()
     assert len(keys) == len(table)
     assert list(dict.fromkeys(table["axis"])) == list(AXES)
@@ -52,6 +54,8 @@ def test_one_row_per_axis_level_seed_pipeline(table):
     assert list(dict.fromkeys(lighting["level"])) == ["lab", "sun"]
     blur = table[table["axis"] == "blur_px"]
     assert set(blur["level"]) == {"0", "8"} and set(blur["level_value"]) == {0.0, 8.0}
+    assert set(table[table["axis"] == "psf_scale"]["level"]) == {"1"}
+    assert (table["psf_scale"] == 1.0).all()
     assert table["recall"].between(0, 1).all()
 
 
@@ -148,6 +152,7 @@ def _hand_table() -> pd.DataFrame:
         "read_noise_e": {3: (1.0, 1.0), 100: (1.0, 0.95)},
         "alpha_deg": {0: (0.5, 0.6), 40: (1.0, 1.0)},
         "lighting": {"lab": (1.0, 1.0), "backlit": (0.9, 0.96), "sun": (0.5, 0.0)},
+        "psf_scale": {0.5: (1.0, 1.0), 1.25: (0.7, 0.6), 1: (1.0, 0.95), 1.5: (0.2, 0.0)},
     }
     rows = []
     for axis, levels in recall.items():
@@ -193,6 +198,10 @@ def test_boundaries_of_a_hand_made_table():
     lighting = b.loc["lighting"]
     assert lighting["failing"] == "backlit,sun"
     assert not lighting["stable"]
+    # lens sharpness: levels out of order in the table; the blurriest PSF kept is 1.
+    psf = b.loc["psf_scale"]
+    assert (psf["last_ok"], psf["first_fail"]) == (1.0, 1.25)
+    assert psf["stable"] and not psf["recovers"] and psf["failing"] == "1.25,1.5"
 
 
 @pytest.mark.parametrize(
@@ -213,12 +222,48 @@ def test_boundaries_of_a_hand_made_table():
         ({"distance_mm": -5.0}, "distance_mm"),
         ({"base_alpha_deg": 100.0}, "base_alpha_deg"),
         ({"dictionary": "9x9_1"}, "dictionary"),
+        ({"base_psf_scale": -0.5}, "base_psf_scale"),
+        ({"base_psf_scale": 11.0}, "base_psf_scale"),
+        ({"psf_axis": "middle"}, "psf_axis"),
+        ({"axes": ("alpha_deg", "focus")}, "axes"),
+        ({"axes": ()}, "axes"),
+        ({"band_seeds": 0}, "band_seeds"),
+        ({"camera": load_profile("prototype").with_psf_scale(0.0)}, "camera"),
     ],
 )
 def test_bad_configs_are_refused_naming_the_field(change, field):
     with pytest.raises(ValueError, match=f"^{field}: ") as info:
         SweepConfig(**change)
     assert "\n" not in str(info.value)
+
+
+def test_the_psf_axis_and_the_band_ends_follow_the_profiles_band():
+    """Levels from the profile's band, never fixed: a recalibrated band moves them."""
+    camera = dataclasses.replace(load_profile("prototype"), band=Band((0.4, 1.2)))
+    config = SweepConfig(camera=camera)
+    assert config.psf_scales == (0.4, 0.7, 1.0, 1.1, 1.2)
+    assert dataclasses.replace(config, psf_axis="ends").psf_scales == (0.4, 1.2)
+    assert QUICK_SWEEP.psf_scales == QUICK_SWEEP.camera.band.psf_ends  # 2 levels
+    points = config.points()
+    base = next(p for p in points if p.axis == "phi_deg" and p.level == 30.0)
+    lens = [p for p in points if p.axis == "psf_scale"]
+    assert [p.psf_scale for p in lens] == [0.4, 0.7, 1.0, 1.1, 1.2]
+    assert {p.render_key for p in lens} == {base.render_key}  # one render for the whole axis
+    assert {p.psf_scale for p in points if p.axis != "psf_scale"} == {1.0}
+    low, high = config.band_end_sweeps()
+    assert (low.base_psf_scale, high.base_psf_scale) == (0.4, 1.2)
+    assert low.axes == BOUNDARY_AXES and low.seeds == config.band_seeds
+    assert {p.axis for p in low.points()} == set(BOUNDARY_AXES)
+    assert {p.psf_scale for p in high.points()} == {1.2}
+    assert SweepConfig(camera=load_profile("ideal")).band_end_sweeps() == ()  # no band
+    # a profile written at another scale (a dataset's camera.json at --psf-scale 1.5): the
+    # levels are still the band's, set against the table as calibrated
+    scaled = SweepConfig(camera=camera.with_psf_scale(1.5))
+    assert scaled.psf_scales == config.psf_scales
+    assert np.allclose(
+        scaled.camera.at_psf_scale(0.4).psf.sigma_radial_px,
+        camera.with_psf_scale(0.4).psf.sigma_radial_px,
+    )
 
 
 def test_run_sweeps_refuses_an_empty_or_ambiguous_pipeline_list():
@@ -243,9 +288,24 @@ def test_a_sweep_runs_on_the_prototype_twin_with_its_own_read_noise(variant):
     )  # fmt: skip
     assert config.camera.name == "prototype"
     table = run_sweeps([PRESETS["robust"]], config, variant=variant, progress=False)
-    assert len(table) == 5 and table["recall"].between(0, 1).all()
+    band = config.camera.band.psf_levels()
+    assert len(table) == 5 + len(band) and table["recall"].between(0, 1).all()
     base = table[table["axis"] == "alpha_deg"]
     assert len(base) == 1
+    # the lens-sharpness axis: the profile's band levels, the other axes at the nominal PSF
+    psf = table[table["axis"] == "psf_scale"]
+    assert psf["level_value"].tolist() == psf["psf_scale"].tolist() == list(band)
+    assert (table[table["axis"] != "psf_scale"]["psf_scale"] == 1.0).all()
+    columns = ["recall", "false_ids", "corner_err_px", "rot_err_deg"]
+    at_base = table[table["axis"] == "phi_deg"][columns].to_numpy(float)  # phi 30: the base
+    nominal = psf[psf["psf_scale"] == 1.0][columns].to_numpy(float)
+    np.testing.assert_array_equal(nominal, at_base)  # the same images: one render, one draw
+    # OpenCV's decoder through the prototype's blur (recall 1, 0.67, 0.33, 0, 0 here): a
+    # sharper lens reads the code, a blurrier one does not; the boundary is the band's low end
+    recall = psf["recall"].to_numpy()
+    assert (np.diff(recall) <= 0).all() and recall[0] == 1.0 and recall[-1] == 0.0
+    edge = boundaries(table).set_index("axis").loc["psf_scale"]
+    assert (edge["last_ok"], edge["first_fail"]) == band[:2]
 
 
 def test_a_backend_crash_is_counted_apart_and_not_as_a_miss(monkeypatch):

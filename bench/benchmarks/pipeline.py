@@ -10,6 +10,11 @@ error on the same frames are printed beside each speed, so a fast pipeline that 
 or places corners badly shows it, and then who leads on each measure, the best peer detector
 beside the best project pipeline (:mod:`bench.evaluate.leaders`, the wording of ``compare``'s
 report). Peers run in their worker process; their frames/s include it.
+
+The camera twin's lens blur is uncertain (its profile's band of PSF scales), so the same frames
+are also recorded at the band's low and high ends (one render, the same noise: only the lens
+differs) and each pipeline's recall and errors are given there too, untimed; who leads says
+whether each accuracy lead holds at both ends (:mod:`bench.evaluate.band`).
 """
 
 from __future__ import annotations
@@ -23,9 +28,16 @@ import pandas as pd
 from bench.common.atomic import write_json
 from bench.common.manifest import RunClock, build_manifest, claim_out, hash_files, write_manifest
 from bench.dataset.config import DatasetConfig
+from bench.evaluate.band import rows_band_values
 from bench.evaluate.leaders import leader_lines, leaders
 from bench.evaluate.score import score_markers
-from bench.evaluate.speed import SPEED_SAMPLE, full_frames, one_opencv_thread, time_pipeline
+from bench.evaluate.speed import (
+    SPEED_SAMPLE,
+    full_frames,
+    one_opencv_thread,
+    time_pipeline,
+    track_frames,
+)
 from pipeline.backends import require
 from pipeline.presets import PipelineConfig
 from renderers.variant import init_worker
@@ -48,7 +60,8 @@ def bench_pipeline(
     out: Path | None = None,
 ) -> dict:
     """Print and return frames/s, ratio to the first pipeline, recall and the errors
-    (:data:`MEASURES`) per pipeline, and who leads.
+    (:data:`MEASURES`) per pipeline, the same errors at the camera band's ends
+    (:func:`band_scales`), and who leads.
 
     A peer that is not installed is refused first
     (:class:`pipeline.backends.BackendUnavailableError`). With ``out``, also write
@@ -61,14 +74,22 @@ def bench_pipeline(
     if out is not None:
         claim_out(out, "bench-pipeline")
     init_worker(variant)
-    images, labels = full_frames(config, frames)
+    ends = band_scales(config)
+    by_scale, labels = full_frames(config, frames, (1.0, *ends))
+    images = by_scale[1.0]
+
+    def measured(detections: pd.DataFrame) -> dict:
+        scores = score_markers(detections, labels)
+        return {k: float(scores[k]) for k in MEASURES if k in scores}
+
     with one_opencv_thread():
-        rows = []
+        rows, at_ends = [], {end: [] for end in ends}
         for pipeline in pipelines:
             fps, detections = time_pipeline(images, config, pipeline, min_seconds)
-            scores = score_markers(detections, labels)
-            measured = {k: float(scores[k]) for k in MEASURES if k in scores}
-            rows.append({"pipeline": pipeline.name, "fps": fps, **measured})
+            rows.append({"pipeline": pipeline.name, "fps": fps, **measured(detections)})
+            for end in ends:
+                result = track_frames(by_scale[end], config, pipeline)
+                at_ends[end].append({"pipeline": pipeline.name, **measured(result.detections)})
     base = rows[0]
     h, w = images[0].shape
     print(f"{len(images)} frames of {w}x{h} px, one core; ratio against {base['pipeline']}")
@@ -87,7 +108,21 @@ def bench_pipeline(
             f"recall {row['recall']:.3f} ({row['recall_pp_vs_base']:+.1f} pp)  "
             f"corner error {row['corner_err_px']:.3f} px{verdict}"
         )
-    leads = leaders(pd.DataFrame(rows))
+    if ends:
+        print(
+            f"the same frames at the camera band's ends (PSF scale "
+            f"{' and '.join(f'{e:g}' for e in ends)} times the table; untimed):"
+        )
+        for k, row in enumerate(rows):
+            print(
+                f"{row['pipeline']:>12}: "
+                + "; ".join(
+                    f"PSF {end:g}: recall {at_ends[end][k]['recall']:.3f}, corner error "
+                    f"{at_ends[end][k]['corner_err_px']:.3f} px"
+                    for end in ends
+                )
+            )
+    leads = leaders(pd.DataFrame(rows), band=rows_band_values(at_ends) if ends else None)
     print("who leads:")
     for line in leader_lines(leads):
         print(f"  {line}")
@@ -97,6 +132,8 @@ def bench_pipeline(
         "cpu_count": os.cpu_count(),
         "opencv": cv2.__version__,
         "pipelines": rows,
+        # the accuracy at each band end, untimed: {"0.5": [{"pipeline": ..., "recall": ...}]}
+        "band_ends": {f"{end:g}": at_ends[end] for end in ends},
         "leaders": leads.to_dict("records"),
     }
     if out is not None:
@@ -117,3 +154,9 @@ def bench_pipeline(
         write_manifest(Path(out), record)
         print(f"wrote {out}/bench.json")
     return figures
+
+
+def band_scales(config: DatasetConfig) -> tuple[float, ...]:
+    """The PSF scales of the camera band's ends (times the table as calibrated) other than the
+    nominal 1: none for a profile without a band."""
+    return tuple(e for e in dict.fromkeys(config.twin.band.psf_ends) if e != 1.0)

@@ -43,6 +43,7 @@ OPTION_OF_FIELD = {
     "exposure_ms": "--exposure-ms",
     "exposure": "--exposure",
     "camera": "--camera",
+    "psf_scale": "--psf-scale",
     "marker_spp": "--spp",
     "subframes": "--subframes",
     "integrator": "--integrator",
@@ -127,6 +128,14 @@ def add_dataset_options(p: argparse.ArgumentParser) -> None:
         f"{DEFAULT_PROFILE})",
     )
     p.add_argument(
+        "--psf-scale",
+        type=float,
+        default=1.0,
+        metavar="F",
+        help="factor on the camera profile's PSF widths, in (0, 10]: one point of the profile's "
+        "band per dataset (default 1, the table as calibrated)",
+    )
+    p.add_argument(
         "--exposure",
         type=float,
         default=1.0,
@@ -200,6 +209,7 @@ def dataset_config(args: argparse.Namespace) -> DatasetConfig:
         fps=args.fps,
         exposure_ms=args.exposure_ms,
         exposure=args.exposure,
+        psf_scale=args.psf_scale,
         sampling=sampling,
         **camera,
         **array,
@@ -232,7 +242,9 @@ def cmd_dataset(args: argparse.Namespace) -> int:
         f"wrote {out}/ ({len(manifest['samples'])} samples, {manifest['skipped']} already done; "
         f"{manifest['frames_rendered']} frames in {manifest['wall_s']:.1f} s"
         + (f", {rate:.1f} frames/s" if rate else "")
-        + f", variant {manifest['variant']}, camera {manifest['camera_profile']})"
+        + f", variant {manifest['variant']}, camera {manifest['camera_profile']}"
+        + ("" if config.psf_scale == 1 else f" at PSF scale {config.psf_scale:g}")
+        + ")"
     )
     groups = manifest["foliage_groups"]
     print(

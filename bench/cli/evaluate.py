@@ -267,7 +267,10 @@ def _sweep_camera(option: str | None, dataset: Path):
 
 
 def cmd_compare(args: argparse.Namespace) -> int:
+    import pandas as pd
+
     from bench.evaluate.compare import run_compare
+    from bench.evaluate.leaders import band_lines
     from bench.evaluate.score import dataset_family
     from bench.evaluate.sweep_config import QUICK_SWEEP, SweepConfig
     from pipeline.backends import BackendUnavailableError
@@ -325,6 +328,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
                 f"{row.deflection_err_mm:.2f} mm"
             )
         print(f"{row.pipeline:>24}: {row.fps:7.1f} frames/s, {accuracy}")
+    for line in band_lines(pd.read_csv(out / "leaders.csv")):
+        print(line)
     print(f"wrote {out}/report.md")
     return 0
 
@@ -344,7 +349,7 @@ def add_bench_pipeline_options(p: argparse.ArgumentParser) -> None:
 
 
 def cmd_bench_pipeline(args: argparse.Namespace) -> int:
-    from bench.benchmarks.pipeline import bench_pipeline
+    from bench.benchmarks.pipeline import band_scales, bench_pipeline
     from bench.dataset.config import DatasetConfigError
     from bench.evaluate.speed import SPEED_SAMPLE
     from pipeline.backends import BackendUnavailableError
@@ -352,7 +357,10 @@ def cmd_bench_pipeline(args: argparse.Namespace) -> int:
     if args.frames < 2:
         raise DatasetConfigError("frames", f"{args.frames}: must be >= 2")
     lens = SPEED_SAMPLE.camera.lens
-    limits.check_frames("frames", args.frames, lens.width_px, lens.height_px, "full frames")
+    scales = 1 + len(band_scales(SPEED_SAMPLE))  # the frames at 1 and at the band's ends
+    size = f"{lens.width_px}x{lens.height_px}"
+    what = f"{args.frames} full frames of {size} at {scales} PSF scales"
+    limits.check_memory("frames", args.frames, scales * lens.width_px * lens.height_px, what)
     if args.out is not None:
         check_out_folder(args.out)
     pipelines = args.pipelines or _installed_presets()

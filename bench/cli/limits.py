@@ -246,13 +246,21 @@ def check_frames(field: str, frames: int, width_px: int, height_px: int, what: s
 
 
 def check_sweep(sweep, pipelines: int) -> None:
-    """The failure-boundary sweeps: renders and images per seed and point, per pipeline."""
+    """The failure-boundary sweeps, with their reruns at the band's ends: renders and images
+    per seed and point, per pipeline."""
+
+    def per_seed(run) -> float:
+        point_s = STUDY_RENDER_S_AT_16_SPP * run.spp / 16 + pipelines * run.images * STUDY_IMAGE_S
+        return len(run.points()) * point_s
+
+    ends = sweep.band_end_sweeps()
+    fixed = sum(run.seeds * per_seed(run) for run in ends)
     points = len(sweep.points())
-    per_seed = points * (
-        STUDY_RENDER_S_AT_16_SPP * sweep.spp / 16 + pipelines * sweep.images * STUDY_IMAGE_S
+    what = f"{sweep.seeds} seeds x {points} sweep points x {pipelines} pipelines" + (
+        f" (and {len(ends)} band ends x {sweep.band_seeds} seeds)" if ends else ""
     )
-    what = f"{sweep.seeds} seeds x {points} sweep points x {pipelines} pipelines"
-    check_time("seeds", sweep.seeds * per_seed, what, sweep.seeds, per_seed)
+    seconds = sweep.seeds * per_seed(sweep) + fixed
+    check_time("seeds", seconds, what, sweep.seeds, per_seed(sweep))
 
 
 #: A full 2592 x 1944 study frame: about 20 s to render and 0.9 s per image through the twin

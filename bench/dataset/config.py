@@ -20,7 +20,7 @@ from scenes.foliage_meshes import DETAIL_LEVELS
 from scenes.lighting import lighting_names
 from scenes.marker import check_dictionary
 from scenes.motion import MotionSpec, MotionSpecError, get_protocol
-from scenes.profile import CameraProfile, load_profile
+from scenes.profile import MAX_PSF_SCALE, CameraProfile, load_profile
 from scenes.validation import MAX_SEED, FieldError
 from scenes.vegetation import (
     FOLIAGE_KINDS,
@@ -157,6 +157,9 @@ class DatasetConfig:
     array: ArraySpec = field(default_factory=ArraySpec)
     #: The camera twin: lens geometry (renderer and labels), optics, sensor and stream.
     camera: CameraProfile = field(default_factory=default_profile)
+    #: Factor on the twin's PSF widths (1: the table as calibrated): one point of the lens
+    #: blur's uncertain band (``camera.band``) per dataset, so a result can be shown at its ends.
+    psf_scale: float = 1.0
 
     def __post_init__(self) -> None:
         for name, allowed in (
@@ -202,6 +205,12 @@ class DatasetConfig:
         e = self.exposure
         if not (isinstance(e, int | float) and math.isfinite(e) and 0 < e <= MAX_EXPOSURE):
             raise DatasetConfigError("exposure", f"{e!r}: allowed range is (0, {MAX_EXPOSURE:g}]")
+        s = self.psf_scale
+        if isinstance(s, bool) or not (
+            isinstance(s, int | float) and math.isfinite(s) and 0 < s <= MAX_PSF_SCALE
+        ):
+            raise DatasetConfigError("psf_scale", f"{s!r}: allowed range is (0, {MAX_PSF_SCALE:g}]")
+        object.__setattr__(self, "psf_scale", float(s))
         self._check_lens()
         if not (isinstance(self.frames_step, int) and self.frames_step >= 1):
             raise DatasetConfigError(
@@ -237,6 +246,12 @@ class DatasetConfig:
         except ValueError as exc:
             raise DatasetConfigError("camera", f"{self.camera.name}: {exc}") from None
 
+    @property
+    def twin(self) -> CameraProfile:
+        """The profile the frames are recorded through: ``camera`` with its PSF widths times
+        ``psf_scale`` (the profile's own ``psf_scale`` records it in each ``camera.json``)."""
+        return self.camera if self.psf_scale == 1 else self.camera.with_psf_scale(self.psf_scale)
+
     def motion(self, protocol: str, distance: str = "close") -> MotionSpec:
         """The protocol with this config's overrides, withdrawn just clear of the foliage."""
         overrides = {
@@ -264,9 +279,13 @@ class DatasetConfig:
         ]
 
     def to_json(self) -> dict:
-        """Every field as JSON; ``camera`` is the profile's own JSON (name and every stage)."""
+        """Every field as JSON; ``camera`` is the profile's own JSON (name and every stage).
+        ``psf_scale`` only where it is not 1: a dataset made before the option keeps its
+        settings hash and resumes."""
         out = dataclasses.asdict(self)
         out["camera"] = self.camera.to_json()
+        if self.psf_scale == 1:
+            del out["psf_scale"]
         return out
 
     def settings_hash(self) -> str:

@@ -143,7 +143,7 @@ def sample_recorder(
 
     seeds = sample.seeds(config.seed if draw_seed is None else draw_seed)
     return FrameRecorder(
-        config.camera,
+        config.twin,
         config.array,
         [(p.name, p.mesh, p.albedo_rgb) for p in sim.vegetation.parts],
         get_lighting(sample.lighting),
@@ -178,7 +178,7 @@ def run_sample(config: DatasetConfig, sample: SampleSpec, out_dir: Path) -> dict
     # --- Labels, camera, preview (drawn on the decoded video: what the pipeline will see)
     with atomic_path(folder / "labels.parquet") as tmp:
         sim.labels.to_parquet(tmp, index=False)
-    write_json(folder / "camera.json", config.camera.to_json())
+    write_json(folder / "camera.json", config.twin.to_json())
     truth = [corners_of_frame(sim.labels, f) for f in range(n_written)]
     write_preview(
         folder / "preview.mp4",

@@ -11,6 +11,11 @@ present are read) and, for the failure boundaries, from
 :func:`bench.evaluate.sweep_report.boundaries`: how far each pipeline keeps recall >= 95 %
 (``last_ok``; a pipeline that fails at the first level is behind every other) and, on the
 lighting axis, how many lightings it fails. Ties name every tied pipeline.
+
+The camera twin's lens blur is uncertain (its profile's band), so a lead is also checked at the
+band's ends where there is evidence for it (:mod:`bench.evaluate.band`): ``holds_across_band``
+is true when a leader at the nominal PSF (one of them, in a tie) also leads at every end, false
+when not, empty where the measure was not judged; ``band_leaders`` names who leads at each end.
 """
 
 from __future__ import annotations
@@ -40,10 +45,12 @@ BOUNDARY_MEASURES = (
     ("blur_px", "motion blur kept (px, last level with recall >= 95 %)", True),
     ("read_noise_e", "read noise kept (e-, last level with recall >= 95 %)", True),
     ("lighting", "lightings failed (recall < 95 %)", False),
+    ("psf_scale", "lens blur kept (PSF scale, last level with recall >= 95 %)", True),
 )
 COLUMNS = (
     "measure", "label", "higher_better", "leader", "value",
     "best_project", "project_value", "best_peer", "peer_value",
+    "holds_across_band", "band_leaders",
 )  # fmt: skip
 
 
@@ -53,9 +60,28 @@ def is_peer(pipeline: str) -> bool:
     return preset in BACKENDS and preset != "opencv"
 
 
-def leaders(summary: pd.DataFrame, edges: pd.DataFrame | None = None) -> pd.DataFrame:
+def boundary_values(edges: pd.DataFrame, axis: str) -> pd.Series:
+    """Per pipeline, what is compared on a boundary axis of ``edges``
+    (:func:`bench.evaluate.sweep_report.boundaries`): ``last_ok``, -inf where the first level
+    already fails (behind every pipeline that passes it); on lighting, the lightings failed."""
+    part = edges[edges["axis"] == axis].set_index("pipeline")
+    if axis == "lighting":
+        failing = part["failing"].fillna("").astype(str)
+        return failing.map(lambda f: float(len([x for x in f.split(",") if x])))
+    return part["last_ok"].astype(float).fillna(-math.inf)
+
+
+def leaders(
+    summary: pd.DataFrame,
+    edges: pd.DataFrame | None = None,
+    band: dict[str, dict[float, pd.Series]] | None = None,
+) -> pd.DataFrame:
     """One row per measure present: the leader(s) and value, the best project pipeline and
-    the best peer with theirs (empty name and NaN where that group has no value)."""
+    the best peer with theirs (empty name and NaN where that group has no value), and whether
+    the lead holds across the band.
+
+    ``band``: per measure column, ``{PSF scale: values per pipeline}`` at the band's ends
+    (:mod:`bench.evaluate.band`); a measure not in it gets an empty ``holds_across_band``."""
     measures = [
         (label, column, higher, summary.set_index("pipeline")[column])
         for column, label, higher in SUMMARY_MEASURES
@@ -63,26 +89,37 @@ def leaders(summary: pd.DataFrame, edges: pd.DataFrame | None = None) -> pd.Data
     ]
     if edges is not None and len(edges):
         for axis, label, higher in BOUNDARY_MEASURES:
-            part = edges[edges["axis"] == axis].set_index("pipeline")
-            if part.empty:
-                continue
-            if axis == "lighting":
-                failing = part["failing"].fillna("").astype(str)
-                values = failing.map(lambda f: float(len([x for x in f.split(",") if x])))
-            else:  # failing at the first level: behind every pipeline that passes it
-                values = part["last_ok"].astype(float).fillna(-math.inf)
-            measures.append((label, axis, higher, values))
+            if (edges["axis"] == axis).any():
+                measures.append((label, axis, higher, boundary_values(edges, axis)))
     rows = []
     for label, column, higher, values in measures:
         peers = np.array([is_peer(n) for n in values.index], bool)
         leader, value = _best(values, higher)
         project, project_value = _best(values[~peers], higher)
         peer, peer_value = _best(values[peers], higher)
+        holds, at_ends = _across_band(leader, (band or {}).get(column, {}), higher)
         rows.append(
             dict(zip(COLUMNS, (column, label, higher, leader, value, project, project_value,
-                               peer, peer_value), strict=True))
+                               peer, peer_value, holds, at_ends), strict=True))
         )  # fmt: skip
     return pd.DataFrame(rows, columns=list(COLUMNS))
+
+
+def _across_band(
+    leader: str, at_ends: dict[float, pd.Series], higher: bool
+) -> tuple[bool | None, str]:
+    """(whether one of the nominal ``leader``s also leads at every band end, None where that
+    is unknown; the leaders at each end, ``"0.5: a, b; 1.5: c"``)."""
+    if not at_ends:
+        return None, ""
+    ends = {scale: _best(values, higher)[0] for scale, values in sorted(at_ends.items())}
+    named = "; ".join(f"{scale:g}: {names or 'none'}" for scale, names in ends.items())
+    if not leader or not all(ends.values()):
+        return None, named
+    keep = set(leader.split(", "))
+    for names in ends.values():
+        keep &= set(names.split(", "))
+    return bool(keep), named
 
 
 def _best(values: pd.Series, higher: bool) -> tuple[str, float]:
@@ -109,8 +146,46 @@ def leader_lines(table: pd.DataFrame) -> list[str]:
             parts.append(f"best project pipeline {row.best_project} ({_show(row.project_value)})")
         if row.best_peer:
             parts.append(f"best peer {row.best_peer} ({_show(row.peer_value)})")
+        if _known(row.holds_across_band):
+            verdict = "holds" if row.holds_across_band else "does not hold"
+            parts.append(f"{verdict} across the band (leading at PSF {row.band_leaders})")
         lines.append("; ".join(parts))
     return lines
+
+
+def band_lines(table: pd.DataFrame) -> list[str]:
+    """Which leads hold across the band and which do not, a sentence each (none without
+    band evidence)."""
+    judged = [r for r in table.itertuples(index=False) if r.leader and _known(r.holds_across_band)]
+    held = [f"{r.label} ({r.leader})" for r in judged if r.holds_across_band]
+    lost = [
+        f"{r.label} ({r.leader} at the nominal PSF; {r.band_leaders})"
+        for r in judged
+        if not r.holds_across_band
+    ]
+    lines = []
+    if held:
+        lines.append("Leads that hold across the band: " + "; ".join(held) + ".")
+    if lost:
+        lines.append("Leads that do not hold across the band: " + "; ".join(lost) + ".")
+    unjudged = [
+        r.label
+        for r in table.itertuples(index=False)
+        if r.leader and not _known(r.holds_across_band)
+    ]
+    if judged and unjudged:
+        lines.append(
+            "Not judged across the band (no evidence, or no pipeline with a value at an end): "
+            + "; ".join(unjudged)
+            + "."
+        )
+    return lines
+
+
+def _known(holds: object) -> bool:
+    """Whether a ``holds_across_band`` value is a verdict (True or False; None or NaN: not
+    judged, as a CSV read back gives it)."""
+    return isinstance(holds, bool | np.bool_)
 
 
 def _show(value: float) -> str:

@@ -142,6 +142,13 @@ def dataset_family(dataset: Path) -> str | None:
         return None
 
 
+def dataset_psf_scale(dataset: Path) -> float:
+    """The PSF scale the dataset's frames were recorded at (its manifest's config; 1 where the
+    config has none: the table as calibrated, and every dataset made before the option)."""
+    config = (read_manifest(dataset) or {}).get("config") or {}
+    return float(config.get("psf_scale", 1.0))
+
+
 def for_family(config: PipelineConfig, family: str | None) -> PipelineConfig:
     """``config`` with its detector set to the marker ``family`` (None: unchanged); ValueError
     in one line when its backend cannot detect that family."""

@@ -21,7 +21,7 @@ import pandas as pd
 from bench.dataset.config import DatasetConfig, SampleSpec
 from bench.dataset.sample import sample_recorder, simulate_sample
 from pipeline.presets import PipelineConfig
-from pipeline.track import MarkerSet, track
+from pipeline.track import MarkerSet, TrackResult, track
 
 #: The busiest scene: dense leaves, a branch, outdoor whisking (frames from its largest
 #: deflection). Every speed figure is measured on its full frames.
@@ -41,9 +41,17 @@ def pick_sample(config: DatasetConfig) -> SampleSpec:
     return (busy or samples)[0]
 
 
-def full_frames(config: DatasetConfig, frames: int) -> tuple[list[np.ndarray], pd.DataFrame]:
-    """``frames`` consecutive full frames around the largest deflection, and their labels
-    (renumbered from 0, like the frames)."""
+def full_frames(
+    config: DatasetConfig, frames: int, psf_scales: tuple[float, ...] = (1.0,)
+) -> tuple[dict[float, list[np.ndarray]], pd.DataFrame]:
+    """``frames`` consecutive full frames around the largest deflection, recorded through the
+    twin at each of ``psf_scales`` (times its PSF table as calibrated, e.g. the band's ends),
+    and their labels (renumbered from 0, like the frames).
+
+    Each frame is rendered once and recorded through one twin per scale, each with the
+    sample's noise seed: the frames at two scales differ only in the lens."""
+    from renderers.frames import TwinRecorder
+
     sample = pick_sample(config)
     sim = simulate_sample(config, sample)
     deflection = sim.labels.groupby("frame")["deflection_mm"].max().to_numpy()
@@ -52,12 +60,26 @@ def full_frames(config: DatasetConfig, frames: int) -> tuple[list[np.ndarray], p
     recorder = sample_recorder(
         config, sample, sim, dataclasses.replace(config.sampling, full_frame=True)
     )
-    images = [recorder.frame(int(f)) for f in indices]
+    region, band = recorder.renderer.region, recorder.renderer.band
+    noise_seed = sample.seeds(config.seed)["noise"]  # the recorder's own
+    twins = {
+        scale: TwinRecorder(
+            recorder.profile.at_psf_scale(scale), region, band, recorder.exposure, noise_seed
+        )
+        for scale in psf_scales
+    }
+    images: dict[float, list[np.ndarray]] = {scale: [] for scale in psf_scales}
+    for f in indices:
+        radiance = recorder.radiance(int(f))
+        for scale, twin in twins.items():
+            images[scale].append(twin.record(radiance))
     labels = sim.labels[sim.labels["frame"].isin(indices)].copy()
     labels["frame"] -= start
+    scales = ", ".join(f"{scale:g}" for scale in twins)
+    scales = "" if tuple(psf_scales) == (1.0,) else f", PSF scales {scales}"
     print(
-        f"sample {sample.sample_id}: {len(images)} full frames ({indices[0]}-{indices[-1]}, "
-        f"largest deflection {deflection.max():.1f} mm)"
+        f"sample {sample.sample_id}: {len(indices)} full frames ({indices[0]}-{indices[-1]}, "
+        f"largest deflection {deflection.max():.1f} mm{scales})"
     )
     return images, labels
 
@@ -71,6 +93,16 @@ def one_opencv_thread() -> Iterator[None]:
         yield
     finally:
         cv2.setNumThreads(threads)
+
+
+def track_frames(
+    images: list[np.ndarray], config: DatasetConfig, pipeline: PipelineConfig
+) -> TrackResult:
+    """The pipeline's tracking (detection and pose of every frame, in order) on ``images`` of
+    ``config``'s array, through its lens."""
+    markers = MarkerSet(config.array.marker_ids, config.array.marker_size_mm)
+    detector, search, pose = pipeline.detector, pipeline.search, pipeline.pose_method
+    return track(images, config.camera.lens, markers, detector, search, pose)
 
 
 def time_pipeline(
@@ -92,19 +124,11 @@ def time_pipeline(
     the worker's glibc returning the library's large buffers to the system after every call
     (with MALLOC_MMAP_THRESHOLD_ and MALLOC_TRIM_THRESHOLD_ raised the ratio was 1.015).
     """
-    markers = MarkerSet(config.array.marker_ids, config.array.marker_size_mm)
-    lens = config.camera.lens
-
-    def run(frames: list[np.ndarray]):
-        return track(
-            frames, lens, markers, pipeline.detector, pipeline.search, pipeline.pose_method
-        )
-
-    run(images[:1])  # starts a peer's worker (about a second) outside the timing
+    track_frames(images[:1], config, pipeline)  # starts a peer's worker outside the timing
     best, total, result = 0.0, 0.0, None
     while result is None or total < min_seconds:
         t0 = time.perf_counter()
-        result = run(images)
+        result = track_frames(images, config, pipeline)
         elapsed = time.perf_counter() - t0
         total += elapsed
         best = max(best, len(images) / elapsed)

@@ -27,7 +27,8 @@ from bench.common.atomic import atomic_path, write_json  # noqa: E402
 def boundaries(table: pd.DataFrame, threshold: float = RECALL_OK) -> pd.DataFrame:
     """Where recall falls below ``threshold``, per (pipeline, axis); one row each.
 
-    Numeric axes all get harder as the value grows (and their smallest level is the easy end),
+    Numeric axes all get harder as the value grows (and their smallest level is the easy end;
+    on ``psf_scale`` ``last_ok`` is the blurriest lens that keeps recall >= ``threshold``),
     so each is walked upward from its smallest level: ``last_ok`` is the last level before the
     first level whose mean recall over seeds is below ``threshold`` (NaN if the first level
     already fails), ``first_fail`` that level (NaN if none fails). ``fail_min``, ``fail_max``,
@@ -105,6 +106,7 @@ _AXIS_LABELS = {
     "lighting": "lighting",
     "blur_px": "motion blur (px)",
     "read_noise_e": "read noise (e-)",
+    "psf_scale": "lens PSF scale (1: the profile's)",
 }
 
 

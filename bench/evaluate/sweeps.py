@@ -14,11 +14,21 @@ From a base point (the array's 13.2 mm marker 200 mm away at alpha 40 deg, tilte
     motion blur: the marker moves ``L`` px horizontally in the image during the exposure
     (:func:`renderers.motion_blur.motion_blur`);
 ``read_noise_e``
-    sensor noise, as the rms read noise (electrons) of the camera profile's well.
+    sensor noise, as the rms read noise (electrons) of the camera profile's well;
+``psf_scale``
+    lens sharpness: the profile's PSF widths times each level of its band
+    (:meth:`scenes.profile.Band.psf_levels`, or only the band's ends), so the axis follows the
+    profile when it is recalibrated. The base point's PSF is ``base_psf_scale`` (1: the table as
+    calibrated, also for a profile written at another scale, e.g. a dataset's ``camera.json``).
 
 Images come from the camera twin (``camera``, a :class:`scenes.profile.CameraProfile`, default
 ``prototype``): the motion blur acts on the clean radiance, then the profile's optics, sensor
-and stream stages run, the read noise replaced by the point's.
+and stream stages run, the read noise and the PSF scale replaced by the point's.
+
+The PSF is applied after the render, so the lens-sharpness levels share the base point's render
+and noise draw: only the lens differs between them. The other axes are read again with the base
+point's PSF at the band's ends (:meth:`~bench.evaluate.sweep_config.SweepConfig.band_end_sweeps`)
+to see whether a pipeline's lead at the nominal PSF holds across the band.
 
 Each distinct crop is rendered once per seed (:func:`clean_render`: the study's
 :func:`~bench.study.cells.render_cell` with one :class:`~renderers.marker_renderer.MarkerRenderer`
@@ -27,7 +37,8 @@ same images, scored as the study scores them (:mod:`bench.common.marker_score`).
 the noise and the canopy's shadows through :meth:`bench.study.config.Cell.seed_sequence` (the
 render's jitter is :data:`RENDER_SEED`'s for every seed), so a seed's images at a point do not
 depend on the rest of the grid; the levels of the blur and the noise axes share one render and
-one noise draw per seed, so that only the level differs between them.
+one noise draw per seed, so that only the level differs between them (so do the
+lens-sharpness levels, with the base point's).
 
 :func:`run_sweeps` gives one row per (axis, level, seed, pipeline);
 :func:`bench.evaluate.sweep_report.boundaries` reads off where recall falls below 95 % and
@@ -192,9 +203,9 @@ def _sweep_task(task: _SweepTask, renderer: MarkerRenderer) -> list[dict]:
     truth = MarkerTruth.of(lens, config.marker_id, config.size_mm, render.T_cam_marker)
     rows = []
     for index, point in zip(task.indices, task.group, strict=True):
+        profile = config.camera.at_psf_scale(point.psf_scale)
         profile = dataclasses.replace(
-            config.camera,
-            sensor=dataclasses.replace(config.camera.sensor, read_noise_e=point.read_noise_e),
+            profile, sensor=dataclasses.replace(profile.sensor, read_noise_e=point.read_noise_e)
         )
         irradiance = optical_image(motion_blur(radiance, point.blur_px), profile, origin)
         images = camera_images(
@@ -214,6 +225,7 @@ def _sweep_task(task: _SweepTask, renderer: MarkerRenderer) -> list[dict]:
                     "axis": point.axis,
                     "level": f"{point.level:g}" if numeric else point.level,
                     "level_value": float(point.level) if numeric else float("nan"),
+                    "psf_scale": point.psf_scale,
                     "seed": task.seed,
                     "pipeline": pipeline.name,
                     **row,
@@ -259,8 +271,9 @@ def run_sweeps(
     """Every pipeline at every (axis, level, seed): one row each.
 
     Columns: ``axis``, ``level`` (str: ``f"{value:g}"`` or the lighting's name), ``level_value``
-    (float; NaN on the lighting axis), ``seed`` (0 .. seeds-1), ``pipeline`` (its name),
-    ``images``, ``recall`` (images where the right id was found / images the backend did not
+    (float; NaN on the lighting axis), ``psf_scale`` (the images' PSF: the level on the
+    ``psf_scale`` axis, the base point's elsewhere), ``seed`` (0 .. seeds-1), ``pipeline`` (its
+    name), ``images``, ``recall`` (images where the right id was found / images the backend did not
     crash on), ``false_ids`` (detections of any other id, summed over the images),
     ``corner_err_px``, ``rot_err_deg``, ``trans_err_mm``, ``own_rot_err_deg``,
     ``own_trans_err_mm`` (medians, :func:`score_images`; ``own_*``: the backend's own pose, NaN
@@ -270,8 +283,8 @@ def run_sweeps(
     on). The pipelines are checked first (:func:`sweep_pipelines`). The config goes to a file
     beside the table (:func:`bench.evaluate.sweep_report.write_sweeps`).
 
-    Each distinct crop is rendered once per seed (points sharing a render: the blur and noise
-    levels, and the base point met on several axes) and every pipeline sees the same images.
+    Each distinct crop is rendered once per seed (points sharing a render: the blur, noise
+    and PSF levels, and the base point met on several axes) and every pipeline sees the same images.
     Each (seed, crop) is a task on ``executor`` (:class:`~bench.common.executor.TaskPool`).
     """
     pipelines = sweep_pipelines(pipelines, config)

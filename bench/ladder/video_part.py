@@ -161,7 +161,7 @@ def _render(task: VideoTask, dataset: DatasetConfig, sample: SampleSpec, cache: 
     replays = []
     for rung in task.rungs:
         stage = rung.options["stage_off"]
-        profile = stage_off(dataset.camera, stage) if stage else dataset.camera
+        profile = stage_off(dataset.twin, stage) if stage else dataset.twin
         replays.append(Replay(recorder, profile, noise))
     folder = task.out_dir / "video"
     paths = [folder / r.key / f"{sample.sample_id}.mp4" for r in task.rungs]

@@ -303,6 +303,8 @@ def calibrated_profile(
     low, high, nominal = result.interval.low, result.interval.high, result.nominal
     param = PARAMS[result.param]
     out = param.apply(profile, nominal)
+    if result.param == "psf_scale":  # the new table is the one the band is stated around
+        out = dataclasses.replace(out, psf_scale=1.0)
     sources = dict(out.sources)
     closed = {
         end: f"closed by {result.limits[end]}" if is_open else "bounded by the observations"
