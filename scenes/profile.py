@@ -241,11 +241,6 @@ class Stream:
 
 # --- The band: what is still uncertain ---------------------------------------------------------
 
-#: Parameters a profile's band may span: the PSF table's scale (1 = the table as written).
-BAND_PARAMS = ("psf_scale",)
-#: Levels a band is studied at: its ends, the nominal (1) and the midpoints between.
-BAND_LEVELS = 5
-
 
 @dataclass(frozen=True)
 class Band:
@@ -303,10 +298,9 @@ class CameraProfile:
     stream: Stream = field(default_factory=Stream)
     band: Band = field(default_factory=Band)
     sources: dict[str, str] = field(default_factory=dict)
-    #: The factor ``psf`` carries over the table as calibrated, the one ``band`` is stated
-    #: around: :meth:`with_psf_scale` multiplies both, so a profile written out after scaling
-    #: (a dataset's ``camera.json`` at ``--psf-scale``) still says where its band lies. 1: the
-    #: table as written; only then is it left out of the JSON (files and hashes as before).
+    #: The factor ``psf`` carries over the table the band is stated around, so a scaled profile
+    #: written out (a dataset's ``camera.json`` at ``--psf-scale``) still says where its band
+    #: lies; left out of the JSON at 1 (files and hashes as before).
     psf_scale: float = 1.0
 
     def __post_init__(self) -> None:

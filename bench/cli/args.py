@@ -51,6 +51,15 @@ def float_list(option: str):
     return parse
 
 
+#: ``--psf-scale band``: the camera profile's own band (:meth:`scenes.profile.Band.psf_levels`).
+BAND = "band"
+
+
+def psf_scales_option(text: str) -> tuple[float, ...] | str:
+    """argparse type of ``--psf-scale``: ``band`` or a comma-separated list of factors."""
+    return BAND if text.strip() == BAND else float_list("--psf-scale")(text)
+
+
 def name_list(option: str):
     """argparse type: comma-separated names, each once (at least one)."""
 

@@ -15,11 +15,13 @@ from pathlib import Path
 
 from bench.cli import limits
 from bench.cli.args import (
+    BAND,
     RUNS,
     add_executor_options,
     check_executor,
     check_out_folder,
     float_list,
+    psf_scales_option,
     seed,
 )
 from bench.cli.camera import add_camera_parser
@@ -196,15 +198,6 @@ def _add_study_options(p: argparse.ArgumentParser) -> None:
         action="store_true",
         help="a small grid for a first look (2 sizes x 3 alphas x 3 phis, at most 30 images)",
     )
-
-
-#: ``--psf-scale band``: the camera profile's own band (:meth:`scenes.profile.Band.psf_levels`).
-BAND = "band"
-
-
-def psf_scales_option(text: str) -> tuple[float, ...] | str:
-    """argparse type of ``--psf-scale``: ``band`` or a comma-separated list of factors."""
-    return BAND if text.strip() == BAND else float_list("--psf-scale")(text)
 
 
 def study_config(args: argparse.Namespace) -> StudyConfig:

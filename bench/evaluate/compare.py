@@ -47,7 +47,8 @@ from bench.common.manifest import (  # noqa: E402
     hash_files,
     write_manifest,
 )
-from bench.evaluate.leaders import band_lines, is_peer, leader_lines, leaders  # noqa: E402
+from bench.evaluate.band import band_section  # noqa: E402
+from bench.evaluate.leaders import is_peer, leader_lines, leaders  # noqa: E402
 from bench.evaluate.speed import (  # noqa: E402
     SPEED_SAMPLE,
     full_frames,
@@ -366,7 +367,7 @@ def render_report(
         *[f"- {line}" for line in failed_frame_lines(tables)],
         *[f"- {line}" for line in refused_lines(summary)],
         "",
-        *_band_section(leads, meta),
+        *band_section(leads, meta),
         "## Accuracy against speed",
         "",
         "![accuracy against speed](pareto.png)",
@@ -404,44 +405,6 @@ def refused_lines(summary: pd.DataFrame) -> list[str]:
         "scores' samples.csv), so it has no accuracy measure"
         for row in everything.itertuples()
     ]
-
-
-def _band_section(leads: pd.DataFrame, meta: dict) -> list[str]:
-    """The report's paragraph on the lens' uncertain blur: what each verdict rests on, its
-    extra cost, and which leads hold across the camera's band and which do not."""
-    band = meta["band"]
-    if band is None:
-        return [
-            "The camera profile has no band (its PSF is taken as known): no lead is checked "
-            "across one.",
-            "",
-        ]
-    low, high = band["range"]
-    ends = " and at ".join(f"{e:g}" for e in band["ends"])  # the nominal end is not rerun
-    return [
-        "## Across the lens' uncertain blur",
-        "",
-        f"The camera twin's PSF is known only within its profile's band: {low:g} to {high:g} "
-        "times the table as calibrated (1). A lead *holds across the band* when a leader at the "
-        "nominal PSF (one of them, in a tie) also leads at the ends (`leaders.csv`: "
-        "`holds_across_band`, `band_leaders`). The evidence: for the failure boundaries, the "
-        f"sweeps' boundary axes run again with the base point's PSF at {ends} "
-        f"({_seeds(band['band_seeds'])} x {band['images']} images a level, against "
-        f"{_seeds(band['seeds'])} at the nominal PSF; {band['band_sweeps_s']:.0f} s more, against "
-        f"{band['sweeps_s']:.0f} s for the nominal sweeps; `sweeps_band_ends.csv`, "
-        "`boundaries_band_ends.csv`). The dataset's recall, corner and pose errors were measured "
-        f"at one PSF scale ({meta['dataset_psf_scale']:g}); whether their leads hold is judged "
-        "on the sweeps' lens-sharpness axis instead: one marker at the base point "
-        f"({band['base']}), {_seeds(band['seeds'])} x {band['images']} images at each end, not "
-        "the dataset's frames. Frames/s and the branch outcome are not judged.",
-        "",
-        *[f"- {line}" for line in band_lines(leads)],
-        "",
-    ]
-
-
-def _seeds(count: int) -> str:
-    return f"{count} seed" + ("" if count == 1 else "s")
 
 
 def failed_frame_lines(tables: dict[str, pd.DataFrame]) -> list[str]:
