@@ -260,3 +260,24 @@ def test_calibrate_writes_a_profile_whose_band_is_the_interval(tmp_path, capsys)
     assert [a["alternative"] for a in report["assumptions"]] == ["sun"]
     original = copy.deepcopy(load_profile("prototype").psf.sigma_radial_px)
     assert profile.psf.sigma_radial_px == pytest.approx([s * nominal for s in original])
+
+
+def test_out_may_not_be_an_input(tmp_path, capsys):
+    shipped = "scenes/profiles/prototype.json"
+    argv = ["camera", "calibrate", "prototype", "--observations", SHIPPED, "--out", shipped]
+    assert main(argv) == 2
+    assert "--out: scenes/profiles/prototype.json: is one of the command's inputs" in (
+        capsys.readouterr().err
+    )
+
+
+def test_check_prints_each_unit_at_each_band_level(tmp_path, capsys):
+    path = observations_file(tmp_path, marker("reads", 13.2, 0.95))
+    assert main(["camera", "check", "prototype", "--observations", str(path)]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    levels = load_profile("prototype").band.psf_levels()
+    assert [line.split(":")[0] for line in lines] == [f"reads at PSF scale {s:g}" for s in levels]
+    nominal = lines[levels.index(1.0)]
+    assert "agrees: alpha 0 phi 0 " in nominal  # the calibrated twin reads the chosen size
+    k, n = map(int, nominal.rsplit(" ", 1)[1].split("/"))
+    assert n >= 10 and k / n >= 0.95

@@ -1,4 +1,5 @@
-"""``whiskerbench camera calibrate``: fit a profile's estimates to what the real sensor did.
+"""``whiskerbench camera calibrate``: fit a profile's estimates to what the real sensor did;
+``camera check``: how the twin fares against each observation across its band.
 
 Bad input (the observations file, an option, a parameter the profile does not mark as an
 estimate) gets one line naming it, exit 2, nothing written. An empty interval (observations that
@@ -59,6 +60,14 @@ def add_calibrate_parser(sub, where: str) -> None:
         help="skip rerunning each assumption's alternatives (faster; the report omits them)",
     )
     cal.set_defaults(func=cmd_camera_calibrate)
+    check = sub.add_parser(
+        "check",
+        help="each observation checked at the profile's band levels: agrees or not, and each "
+        "unit's count (what calibrate bisects over)",
+    )
+    check.add_argument("camera", metavar="CAMERA", help=where)
+    check.add_argument("--observations", required=True, help="observations JSON")
+    check.set_defaults(func=cmd_camera_check)
 
 
 def _fail(option: str, detail: str, code: int = 2) -> int:
@@ -102,33 +111,15 @@ def summary_lines(report: dict) -> list[str]:
     return lines
 
 
-def cmd_camera_calibrate(args: argparse.Namespace) -> int:
-    from bench.twin.calibrate import (
-        CalibrationInputError,
-        calibrated_profile,
-        check_param,
-        search_range,
-    )
+def _inputs(args: argparse.Namespace):
+    """(profile, observations), or the exit code of the one-line refusal."""
     from scenes.observations import ObservationError, check_against_lens, load_observations
     from scenes.profile import ProfileError, load_profile
 
-    out = Path(args.out)
-    try:
-        check_out_file(out)
-        check_out_file(report_path(out))
-    except FieldError as exc:
-        return _fail("--out", exc.detail)
-    if not (math.isfinite(args.f_number) and 1.0 <= args.f_number <= 32.0):
-        return _fail("--f-number", f"{args.f_number:g}: allowed range is 1..32")
-    if not (math.isfinite(args.tolerance) and 0.001 <= args.tolerance <= 0.5):
-        return _fail("--tolerance", f"{args.tolerance:g}: allowed range is 0.001..0.5")
     try:
         profile = load_profile(args.camera)
     except ProfileError as exc:
         return _fail("CAMERA", exc.option_detail)
-    inputs = [Path(args.camera), Path(args.observations)]
-    if any(p.exists() and p.resolve() == out.resolve() for p in inputs):
-        return _fail("--out", f"{out}: is one of the command's inputs; write elsewhere")
     try:
         observations = load_observations(args.observations)
         check_against_lens(observations, profile.lens)
@@ -141,6 +132,60 @@ def cmd_camera_calibrate(args: argparse.Namespace) -> int:
             detector_of(o.detector)
         except ValueError as exc:
             return _fail("--observations", f"observations[{i}].detector: {exc}")
+    return profile, observations
+
+
+def cmd_camera_check(args: argparse.Namespace) -> int:
+    """Print, per observation and band level, whether the twin agrees and every unit's k/n."""
+    inputs = _inputs(args)
+    if isinstance(inputs, int):
+        return inputs
+    profile, observations = inputs
+    from bench.twin.evidence import evidence_of
+    from bench.twin.run import detector_of
+    from renderers.variant import init_worker
+
+    init_worker(None)
+    disagree = 0
+    for o in observations.observations:
+        evidence = evidence_of(o, profile, detector_of(o.detector))
+        for scale in profile.band.psf_levels():
+            verdict = evidence.check(profile.with_psf_scale(scale), scale, o)
+            counts = ", ".join(f"{u.label} {u.k}/{u.n}" for u in verdict.units)
+            word = "agrees" if verdict.consistent else "DISAGREES"
+            print(f"{o.id} at PSF scale {scale:g}: {word}: {counts}")
+            disagree += scale == 1.0 and not verdict.consistent
+    return 1 if disagree else 0
+
+
+def cmd_camera_calibrate(args: argparse.Namespace) -> int:
+    from bench.twin.calibrate import (
+        CalibrationInputError,
+        calibrated_profile,
+        check_param,
+        search_range,
+    )
+
+    out = Path(args.out)
+    try:
+        check_out_file(out)
+        check_out_file(report_path(out))
+    except FieldError as exc:
+        return _fail("--out", exc.detail)
+    if not (math.isfinite(args.f_number) and 1.0 <= args.f_number <= 32.0):
+        return _fail("--f-number", f"{args.f_number:g}: allowed range is 1..32")
+    if not (math.isfinite(args.tolerance) and 0.001 <= args.tolerance <= 0.5):
+        return _fail("--tolerance", f"{args.tolerance:g}: allowed range is 0.001..0.5")
+    inputs = _inputs(args)
+    if isinstance(inputs, int):
+        return inputs
+    profile, observations = inputs
+    from scenes.observations import observations_path
+    from scenes.profile import profile_path
+
+    files = (profile_path(args.camera), observations_path(args.observations))
+    if out.resolve() in {p.resolve() for p in files}:
+        return _fail("--out", f"{out}: is one of the command's inputs; write elsewhere")
     try:
         search_range(profile, check_param(profile, args.param), args.f_number)
     except CalibrationInputError as exc:
