@@ -3,7 +3,7 @@ VENV ?= .venv
 PYTHON ?= python3
 BIN := $(VENV)/bin
 
-.PHONY: setup llvm study quick test test-fast bench bench-pipeline compare ladder indoor lint
+.PHONY: setup llvm study quick test test-fast bench bench-gpu bench-pipeline compare ladder indoor lint
 
 setup: $(VENV)/.installed llvm
 
@@ -49,6 +49,12 @@ bench: setup
 	$(BIN)/whiskerbench bench render
 	$(BIN)/whiskerbench bench render --scene array --spp 4
 	$(BIN)/whiskerbench bench scale
+
+# On a machine with an NVIDIA GPU: tests/test_gpu.py, then each benchmark on cuda_ad_rgb with its
+# llvm_ad_rgb baseline in the same run; time-boxed (BUDGET s). Figures: results/gpu/figures.md.
+GPU_OUT ?= results/gpu/run
+bench-gpu: setup
+	PY=$(BIN)/python OUT=$(GPU_OUT) BUDGET=$${BUDGET:-1800} bash bench/benchmarks/gpu_run.sh
 
 # The comparison's dataset: 24 outdoor samples (soft strips and dense leaves, 3 distances, no /
 # one / two branches), about 5 min to render; reruns skip what is done.

@@ -153,6 +153,11 @@ class FrameRenderer:
         bounce_seeds = np.random.SeedSequence(seed).spawn(3)[2].generate_state(len(plans))
         self._batches = [self._batch(p, int(s)) for p, s in zip(plans, bounce_seeds, strict=True)]
         self._depth = sampling.path_depth if sampling.integrator == "path" else 0
+        # OptiX runs one scene (shader binding table) per kernel: on CUDA, Dr.Jit disables a ray
+        # query of a second scene recorded into the same kernel ("more than one OptiX shader
+        # binding table was used within a single kernel"), so each query is evaluated on its own
+        # (without it, frames on an H100 came out 22% too bright: results/gpu/figures.md).
+        self._query_per_kernel = mi.variant().startswith("cuda")
         self._setup_shading()
         # Per pixel: its sample count (1 where it has none: its sum is 0) and gain, read by
         # each channel of the interleaved (H, W, 3) sum.
@@ -245,6 +250,13 @@ class FrameRenderer:
             rgb += dr.select(active, beta * light, 0.0)
         return rgb
 
+    def _query(self, result):
+        """A ray query's result, evaluated now on CUDA (one scene per kernel, see __init__);
+        unchanged on LLVM, whose kernels may trace any number of scenes."""
+        if self._query_per_kernel:
+            dr.eval(result)
+        return result
+
     def _nearest(self, origin_cam, dirs, shift: mi.Vector3f, active) -> _Vertex:
         """The nearer hit of the array and the vegetation along rays from ``origin_cam``.
 
@@ -252,9 +264,9 @@ class FrameRenderer:
         surfaces are shaded only where they are the nearest hit.
         """
         ray_cam = mi.Ray3f(origin_cam, dirs)
-        si_a = self.array.scene.ray_intersect(ray_cam, active=active)
+        si_a = self._query(self.array.scene.ray_intersect(ray_cam, active=active))
         ray_veg = mi.Ray3f(mi.Ray3f(origin_cam + shift, dirs), si_a.t)
-        si_v = self.vegetation.ray_intersect(ray_veg, active=active)
+        si_v = self._query(self.vegetation.ray_intersect(ray_veg, active=active))
         near_a = si_a.is_valid() & ~si_v.is_valid()
         parts = [
             self._surface(si, ray_cam, on) for si, on in ((si_a, near_a), (si_v, si_v.is_valid()))
@@ -299,11 +311,13 @@ class FrameRenderer:
         """1 where the sun reaches the point past the array, the vegetation and the canopy."""
         to_sun = self._sun[0]
         origin = p_cam + normal * SHADOW_EPS_MM
-        blocked = self.array.scene.ray_test(mi.Ray3f(origin, to_sun), active)
-        blocked |= self.vegetation.ray_test(mi.Ray3f(origin + shift, to_sun), active & ~blocked)
+        blocked = self._query(self.array.scene.ray_test(mi.Ray3f(origin, to_sun), active))
+        blocked |= self._query(
+            self.vegetation.ray_test(mi.Ray3f(origin + shift, to_sun), active & ~blocked)
+        )
         if self.canopy is not None:
-            blocked |= self.canopy.ray_test(
-                mi.Ray3f(origin + shift, batch.to_sun), active & ~blocked
+            blocked |= self._query(
+                self.canopy.ray_test(mi.Ray3f(origin + shift, batch.to_sun), active & ~blocked)
             )
         return dr.select(blocked, 0.0, 1.0)
 

@@ -21,6 +21,10 @@ from renderers.variant import find_libllvm, gpu_present
 
 ROOT = Path(__file__).resolve().parents[1]
 CUDA = "cuda_ad_rgb"
+#: Dr.Jit's warning when a CUDA kernel traces more than one scene: it then *disables* the ray
+#: queries beyond the first scene (the frames came out brighter: sun shadows lost), silently
+#: for the output files, so the runs below must not print it.
+OPTIX_ONE_SCENE = "more than one OptiX shader binding table"
 
 
 @functools.cache
@@ -50,6 +54,7 @@ def _run(*args: str, timeout: int = 1200) -> subprocess.CompletedProcess:
         timeout=timeout,
     )
     assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
+    assert OPTIX_ONE_SCENE not in done.stdout + done.stderr, done.stderr[-2000:]
     return done
 
 
