@@ -25,7 +25,6 @@ checked against a lens with :func:`check_against_lens` once the camera is known.
 
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -34,7 +33,7 @@ from typing import Any
 from scenes.camera import FisheyeCamera
 from scenes.marker import check_dictionary
 from scenes.study import MAX_PHI_DEG
-from scenes.validation import FieldError
+from scenes.validation import FieldError, read_small_json
 
 FORMAT = "whiskerbench-observations"
 VERSION = 1
@@ -42,8 +41,6 @@ OBSERVATIONS_DIR = Path(__file__).with_name("observations")
 KINDS = ("marker", "array_rest", "array_sampling")
 #: Largest observations file read: real ones are a few kB.
 MAX_BYTES = 1 << 20
-#: Deepest JSON nesting accepted (the format needs 5).
-MAX_DEPTH = 8
 #: Most observations, alternatives and region cells: each one costs renders in calibration.
 MAX_OBSERVATIONS = 32
 MAX_ALTERNATIVES = 4
@@ -150,14 +147,6 @@ class Observations:
         items = list(self.observations)
         items[index] = observation
         return replace(self, observations=tuple(items))
-
-
-def _depth(value: Any, level: int = 0) -> int:
-    if isinstance(value, dict):
-        return max([_depth(v, level + 1) for v in value.values()], default=level + 1)
-    if isinstance(value, list):
-        return max([_depth(v, level + 1) for v in value], default=level + 1)
-    return level
 
 
 def _text(where: str, value: Any) -> str:
@@ -332,15 +321,7 @@ def observations_path(name_or_path: str | Path) -> Path:
 def load_observations(name_or_path: str | Path) -> Observations:
     """Read and validate an observations file, bounded before it is parsed."""
     path = observations_path(name_or_path)
-    if path.stat().st_size > MAX_BYTES:
-        raise ObservationError("observations", f"{path}: larger than {MAX_BYTES} bytes")
-    try:
-        data = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise ObservationError("observations", f"{path}: not valid JSON ({exc})") from None
-    if _depth(data) > MAX_DEPTH:
-        raise ObservationError("observations", f"{path}: nested deeper than {MAX_DEPTH} levels")
-    return parse_observations(data)
+    return parse_observations(read_small_json(path, MAX_BYTES, ObservationError, "observations"))
 
 
 def check_against_lens(observations: Observations, lens: FisheyeCamera) -> None:

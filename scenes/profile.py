@@ -15,7 +15,6 @@ map, keyed by the dotted field name (a section name covers every field of that s
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -24,7 +23,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from scenes.camera import FisheyeCamera, default_camera
-from scenes.validation import FieldError
+from scenes.validation import FieldError, read_small_json
 
 FORMAT = "whiskerbench-camera-profile"
 VERSION = 1
@@ -441,10 +440,4 @@ def profile_path(name_or_path: str | Path) -> Path:
 def load_profile(name_or_path: str | Path) -> CameraProfile:
     """A shipped profile by name (``ideal``, ``prototype``) or a profile/camera JSON file."""
     path = profile_path(name_or_path)
-    if path.stat().st_size > MAX_PROFILE_BYTES:
-        raise ProfileError("camera", f"{path}: larger than {MAX_PROFILE_BYTES} bytes")
-    try:
-        data = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise ProfileError("camera", f"{path}: not valid JSON ({exc})") from None
-    return CameraProfile.from_json(data)
+    return CameraProfile.from_json(read_small_json(path, MAX_PROFILE_BYTES, ProfileError, "camera"))

@@ -281,3 +281,20 @@ def test_check_prints_each_unit_at_each_band_level(tmp_path, capsys):
     assert "agrees: alpha 0 phi 0 " in nominal  # the calibrated twin reads the chosen size
     k, n = map(int, nominal.rsplit(" ", 1)[1].split("/"))
     assert n >= 10 and k / n >= 0.95
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ("[" * 30 + "]" * 30, "nested deeper than 8 levels"),
+        ("{not json", "not valid JSON"),
+        (" " * (2 << 20), "larger than 1048576 bytes"),
+    ],
+)
+def test_hostile_observation_files_are_bounded(tmp_path, capsys, text, message):
+    path = tmp_path / "obs.json"
+    path.write_text(text)
+    argv = ["camera", "check", "prototype", "--observations", str(path)]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and message in err and str(path) in err
