@@ -131,7 +131,7 @@ def plot_max_phi(
     ]
     fig.legend(
         handles=size_handles,
-        loc="outside right upper",
+        loc="outside right center",
         title="marker size",
         fontsize=8,
         title_fontsize=8,
