@@ -56,6 +56,9 @@ MAX_MARGIN_PX = 4096
 
 @dataclass(frozen=True)
 class PipelineConfig:
+    """One branch-finding pipeline, every choice from detector to threshold; a preset
+    (:data:`PRESETS`) or a variant of one (:func:`get_pipeline`). Validated on construction."""
+
     name: str
     detector: DetectorConfig
     search: Search = Search()
@@ -97,6 +100,7 @@ class PipelineConfig:
         return dataclasses.asdict(self)
 
 
+#: The shipped pipelines by name (the module docstring says what each one is for).
 PRESETS: dict[str, PipelineConfig] = {
     "paper": PipelineConfig(
         "paper", DetectorConfig(corner_refinement="subpix"), Search("full"), "fisheye"

@@ -28,7 +28,6 @@ from scenes.validation import FieldError, read_small_json
 FORMAT = "whiskerbench-camera-profile"
 VERSION = 1
 PROFILES_DIR = Path(__file__).with_name("profiles")
-
 CFA_PATTERNS = ("none", "RGGB", "BGGR", "GRBG", "GBRG")
 DEMOSAIC_METHODS = ("bilinear", "edge_aware", "vng")
 TRANSFER_CURVES = ("srgb", "linear")
@@ -417,6 +416,7 @@ def _section(key: str, section_cls: type, data: Any):
 
 
 def shipped_profiles() -> tuple[str, ...]:
+    """The names :func:`load_profile` accepts for the profiles shipped in ``PROFILES_DIR``."""
     return tuple(sorted(p.stem for p in PROFILES_DIR.glob("*.json")))
 
 

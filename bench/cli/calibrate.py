@@ -197,9 +197,7 @@ def _run(args, profile, observations, out: Path, calibrated_profile) -> int:
     from tqdm import tqdm
 
     from bench.twin.run import run_calibration
-    from renderers.variant import init_worker
 
-    init_worker(None)
     with tqdm(desc="calibrate", unit=" step", disable=None, file=sys.stderr) as bar:
 
         def progress(text: str) -> None:

@@ -9,8 +9,16 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Callable
 
-from bench.twin.calibrate import PARAMS, Calibration, Checker, calibrate
+from bench.twin.calibrate import (
+    DEFAULT_F_NUMBER,
+    DEFAULT_TOLERANCE,
+    Calibration,
+    Checker,
+    calibrate,
+    check_param,
+)
 from bench.twin.evidence import evidence_of
+from renderers.variant import init_worker
 from scenes.observations import Observation, Observations
 from scenes.profile import CameraProfile
 
@@ -30,7 +38,7 @@ class Checkers:
     whose scenes are the same."""
 
     def __init__(self, base: CameraProfile, param: str) -> None:
-        self.base, self.param = base, PARAMS[param]
+        self.base, self.param = base, check_param(base, param)
         self._evidence: dict[tuple, object] = {}
 
     def __call__(self, observation: Observation) -> Checker:
@@ -51,12 +59,21 @@ class Checkers:
 def run_calibration(
     base: CameraProfile,
     observations: Observations,
-    param: str,
-    f_number: float,
-    tolerance: float,
+    param: str = "psf_scale",
+    f_number: float = DEFAULT_F_NUMBER,
+    tolerance: float = DEFAULT_TOLERANCE,
     assumptions: bool = True,
     progress: Callable[[str], None] = lambda text: None,
+    variant: str | None = None,
 ) -> Calibration:
+    """Calibrate ``param`` of ``base`` against ``observations``: each observation's interval
+    (bisected to ``tolerance``), their intersection, its nominal and how each assumption's
+    alternatives move it (``assumptions``). Renders, so it selects the Mitsuba ``variant``
+    (None: the fastest here) first; ``progress`` is told each step. ``f_number`` bounds the PSF
+    search (:func:`~bench.twin.calibrate.search_range`); CalibrationInputError (one line) for a
+    parameter this profile cannot calibrate."""
+    checkers = Checkers(base, param)  # a bad parameter is refused before anything renders
+    init_worker(variant)
     return calibrate(
-        base, observations, param, Checkers(base, param), f_number, tolerance, assumptions, progress
+        base, observations, param, checkers, f_number, tolerance, assumptions, progress
     )
