@@ -401,7 +401,7 @@ def test_score_and_compare_report_a_pipeline_that_refuses_every_sample(
         blur_px=(0.0,), read_noise_e=(3.0,), seeds=1, images=2,
     )  # fmt: skip
     monkeypatch.setattr(sweep_config, "QUICK_SWEEP", tiny)
-    monkeypatch.setattr("bench.evaluate.compare.full_frames", lambda config, n: ([], None))
+    monkeypatch.setattr("bench.evaluate.compare.full_frames", lambda config, n: ({1.0: []}, None))
     monkeypatch.setattr("bench.evaluate.compare.time_pipeline", lambda *a: (10.0, None))
     report = tmp_path / "report"
     argv = ["compare", str(dataset), "--pipelines", "paper,naive", "--quick", "--out", str(report)]
