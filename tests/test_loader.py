@@ -83,6 +83,15 @@ def test_random_access_equals_the_sequential_decode(fake) -> None:
     assert np.array_equal(sample.frame(10).image, truth[10])  # reopens
 
 
+def test_a_sample_pickles_for_worker_processes(fake) -> None:
+    import pickle
+
+    sample = open_dataset(fake)[LONG]
+    first = sample.frame(7).image  # the video is open
+    copy = pickle.loads(pickle.dumps(sample))
+    assert copy.id == LONG and np.array_equal(copy.frame(7).image, first)
+
+
 @pytest.mark.parametrize("seek", [True, False])
 def test_grey_video_seeks_exactly_or_decodes_forward(fake, seek) -> None:
     path = fake / LONG / "video.mp4"

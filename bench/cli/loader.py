@@ -13,15 +13,15 @@ def cmd_bench_loader(args: argparse.Namespace) -> int:
     from bench.dataset.format import DatasetFormatError
 
     if args.repeats < 1:
-        raise FieldError("repeats", f"{args.repeats}: must be >= 1")
+        raise FieldError("--repeats", f"{args.repeats}: must be >= 1")
     if args.random_frames < 0:
-        raise FieldError("random-frames", f"{args.random_frames}: must be >= 0")
+        raise FieldError("--random-frames", f"{args.random_frames}: must be >= 0")
     try:
         bench_loader(args.dataset, args.sample, args.repeats, args.random_frames)
     except DatasetFormatError as exc:
         raise FieldError("DATASET", str(exc)) from None
     except KeyError as exc:  # an unknown --sample
-        raise FieldError("sample", str(exc.args[0])) from None
+        raise FieldError("--sample", str(exc.args[0])) from None
     return 0
 
 

@@ -42,7 +42,7 @@ from scenes.profile import CameraProfile
 from scenes.tables import LABELS, check_table
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Frame:
     """One frame of a sample: its index in the video (from 0), time (s, the middle of its
     exposure), grey image ((H, W) uint8) and its rows of ``labels.parquet`` (one per marker)."""
@@ -159,6 +159,10 @@ class Sample:
     def __enter__(self) -> Sample:
         return self
 
+    def __getstate__(self) -> dict:
+        """Picklable (for worker processes): the open video stays behind, reopened on use."""
+        return {**self.__dict__, "_video": None}
+
     def __exit__(self, *exc: object) -> None:
         self.close()
 
@@ -246,7 +250,8 @@ def open_dataset(path: str | Path, verify: bool = False) -> Dataset:
     the file, for anything that is not a finished dataset of a format version read here."""
     folder = Path(path)
     if not folder.is_dir():
-        raise DatasetFormatError(f"{folder}: not a dataset folder (no such folder)")
+        why = "a file" if folder.exists() else "no such folder"
+        raise DatasetFormatError(f"{folder}: not a dataset folder ({why})")
     manifest_path = folder / MANIFEST
     if not manifest_path.is_file():
         raise DatasetFormatError(
