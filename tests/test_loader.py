@@ -103,6 +103,48 @@ def test_grey_video_seeks_exactly_or_decodes_forward(fake, seek) -> None:
         assert (video.seeks > 0) == seek
 
 
+def test_grey_video_falls_back_on_a_colour_video(tmp_path) -> None:
+    """A colour video's luma is not its grey conversion: every frame goes through BGR."""
+    from bench.common.video import write_video
+
+    rng = np.random.default_rng(2)
+    path = tmp_path / "colour.mp4"
+    write_video(path, [rng.integers(0, 256, (48, 64, 3), dtype=np.uint8) for _ in range(8)], 15.0)
+    truth = list(read_video(path))
+    with GreyVideo(path) as video:
+        assert not video.luma
+        assert all(np.array_equal(video.read(i), truth[i]) for i in (7, 0, 3, 4))
+
+
+def test_the_luma_check_runs_once_per_file(fake, monkeypatch) -> None:
+    from bench.common import grey_video
+
+    path = fake / SHORT / "video.mp4"
+    GreyVideo(path).close()  # checked (or the verdict kept from another test)
+
+    def fail(_path):
+        raise AssertionError("checked again")
+
+    monkeypatch.setattr(grey_video, "_bgr_grey_frame0", fail)
+    with GreyVideo(path) as video:
+        assert video.luma and np.array_equal(video.read(4), list(read_video(path))[4])
+
+
+def test_frame_labels_from_a_table_out_of_frame_order(copy) -> None:
+    path = copy / LONG / "labels.parquet"
+    labels = pd.read_parquet(path)
+    labels.sample(frac=1.0, random_state=0).to_parquet(path, index=False)
+    sample = open_dataset(copy)[LONG]
+    for index in (0, 33, 63):
+        frame = sample.frame(index)
+        want = labels[labels["frame"] == index]
+        assert frame.time_s == want["time_s"].iloc[0]
+        pd.testing.assert_frame_equal(
+            frame.labels.sort_values("whisker").reset_index(drop=True),
+            want.reset_index(drop=True),
+        )
+
+
 def test_grey_video_names_a_truncated_file(fake, tmp_path) -> None:
     path = tmp_path / "cut.mp4"
     data = (fake / LONG / "video.mp4").read_bytes()

@@ -8,7 +8,8 @@ reported), after one untimed read that brings the file into the page cache:
 - ``read_video``: :func:`bench.common.video.read_video`, the project's reader (BGR, then grey);
 - ``loader``: :meth:`bench.dataset.loader.Sample.frames` on a sample taken afresh from the
   dataset: ``sample.json``, ``camera.json`` and ``labels.parquet`` read, then per frame the
-  grey image and its label rows.
+  grey image and its label rows. Its first run also checks, once per file and process, that
+  the video's luma plane is its grey image (:mod:`bench.common.grey_video`): printed apart.
 
 Then random access: ``random_frames`` frames in a random order through
 :meth:`~bench.dataset.loader.Sample.frame` (each a seek and a decode from the keyframe before).
@@ -76,6 +77,8 @@ def bench_loader(
     print(f"  OpenCV VideoCapture.read (BGR, decode only): {fps['opencv']:6.1f} frames/s")
     print(f"  read_video (BGR, then grey):                 {fps['read_video']:6.1f} frames/s")
     print(f"  loader frames() (grey image + label rows):    {fps['loader']:6.1f} frames/s")
+    first_fps = n / seconds["loader"][0]
+    print(f"  loader, its first run (checks the decoder):   {first_fps:6.1f} frames/s")
     print(f"loader / OpenCV: {ratio:.2f}x")
 
     order = np.random.default_rng(0).permutation(n)[: min(random_frames, n)]
@@ -94,6 +97,7 @@ def bench_loader(
         "seconds": seconds,
         "frames_per_s": fps,
         "loader_over_opencv": ratio,
+        "loader_first_run_frames_per_s": first_fps,
         "random_frames": len(order) - 1,
         "random_frames_per_s": random_fps,
         "cpu_count": os.cpu_count(),

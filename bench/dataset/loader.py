@@ -118,14 +118,21 @@ class Sample:
         return table
 
     @functools.cached_property
-    def _rows(self) -> tuple[dict[int, np.ndarray], np.ndarray]:
-        """(row positions of each frame in :attr:`labels`, each frame's time_s, NaN if none)."""
-        table = self.labels
-        positions = table.groupby("frame", sort=False).indices
-        times = np.full(len(self), np.nan)
-        for frame, rows in positions.items():
-            times[int(frame)] = table["time_s"].iat[rows[0]]
-        return {int(f): r for f, r in positions.items()}, times
+    def _rows(self) -> tuple[list[slice | np.ndarray], np.ndarray]:
+        """(each frame's rows of :attr:`labels`: a slice where the table is in frame order, as
+        written, else their positions; each frame's time_s, NaN for a frame without rows)."""
+        table, n = self.labels, len(self)
+        frames = table["frame"].to_numpy()
+        if np.all(frames[1:] >= frames[:-1]):
+            lo, hi = (np.searchsorted(frames, np.arange(n), side=s) for s in ("left", "right"))
+            rows: list[slice | np.ndarray] = [slice(a, b) for a, b in zip(lo, hi, strict=True)]
+        else:
+            positions = table.groupby("frame").indices
+            rows = [positions.get(f, np.zeros(0, int)) for f in range(n)]
+        first = table.groupby("frame")["time_s"].first()
+        times = np.full(n, np.nan)
+        times[first.index.to_numpy()] = first.to_numpy()
+        return rows, times
 
     # --- frames
     def frame(self, index: int) -> Frame:
@@ -171,10 +178,8 @@ class Sample:
             image = video.read(index)
         except ValueError as exc:
             raise DatasetFormatError(_line(exc)) from None
-        positions, times = self._rows
-        rows = positions.get(index)
-        labels = self.labels.iloc[rows if rows is not None else []]
-        return Frame(index, float(times[index]), image, labels)
+        rows, times = self._rows
+        return Frame(index, float(times[index]), image, self.labels.iloc[rows[index]])
 
     def _open_video(self) -> GreyVideo:
         path = self.video_path
