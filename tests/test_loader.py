@@ -165,6 +165,15 @@ def test_verify_checks_every_hash_on_request(copy) -> None:
         open_dataset(copy, verify=True)
 
 
+def test_verify_refuses_a_newer_major_version(copy) -> None:
+    """score and compare verify first: they refuse it too, naming the manifest."""
+    from bench.dataset.verify import verify_dataset
+
+    _edit_json(copy / "manifest.json", format_version="2.1")
+    with pytest.raises(DatasetFormatError, match=r"manifest.json: dataset format 2.1 is newer"):
+        verify_dataset(copy)
+
+
 def _edit_json(path: Path, **changes) -> None:
     data = json.loads(path.read_text())
     data.update(changes)

@@ -20,7 +20,7 @@ from tqdm import tqdm
 
 from bench.common.manifest import MANIFEST, kind_of, read_manifest, sha256
 from bench.dataset.config import SAMPLE_FILES
-from bench.dataset.format import DatasetFormatError
+from bench.dataset.format import DatasetFormatError, check_format_version
 
 #: A sample id: a plain folder name (no separator, no leading dot, so never ``..``).
 SAMPLE_ID = re.compile(r"[A-Za-z0-9][A-Za-z0-9._+-]*")
@@ -71,7 +71,8 @@ def verify_dataset(folder: Path, progress: bool = False) -> VerifiedDataset:
     """Hash every file of every sample and compare with the manifest and ``sample.json``.
 
     Raises DatasetIntegrityError (one line naming the file) on the first disagreement, a sample
-    missing from the manifest or listed there but absent, or an unfinished dataset.
+    missing from the manifest or listed there but absent, or an unfinished dataset; a
+    DatasetFormatError for a dataset of a newer major format version.
     """
     folder = Path(folder)
     manifest_path = folder / MANIFEST
@@ -80,6 +81,7 @@ def verify_dataset(folder: Path, progress: bool = False) -> VerifiedDataset:
         raise DatasetIntegrityError(
             f"{manifest_path}: no dataset manifest (not a folder made by `whiskerbench dataset`)"
         )
+    check_format_version(manifest, manifest_path)  # a newer major version: not read here
     if not isinstance(manifest.get("files"), dict) or not isinstance(manifest.get("samples"), list):
         raise DatasetIntegrityError(
             f"{manifest_path}: the dataset run did not finish; rerun `whiskerbench dataset`"
