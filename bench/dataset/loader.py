@@ -166,12 +166,12 @@ class Sample:
     def __enter__(self) -> Sample:
         return self
 
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
     def __getstate__(self) -> dict:
         """Picklable (for worker processes): the open video stays behind, reopened on use."""
         return {**self.__dict__, "_video": None}
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
     def _make_frame(self, video: GreyVideo, index: int) -> Frame:
         try:
