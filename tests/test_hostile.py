@@ -178,6 +178,11 @@ CASES: list[tuple[str, str]] = [
     ("bench render --scene=array --spp=1000", r"--spp.*every ray of a full frame.*GiB; limit \d+"),
     ("bench render --variant=nosuch", r"--variant.*invalid choice"),
     ("bench render --out={fx}/afile", r"--out:.*is a file"),
+    ("bench loader {fx}/nosuch", r"DATASET: .*nosuch: not a dataset folder"),
+    ("bench loader {fx}/afile", r"DATASET: .*afile: not a dataset folder"),
+    ("bench loader {fx}/nodataset", r"DATASET: .*nodataset/manifest\.json: missing"),
+    ("bench loader {fx}/nodataset --repeats=0", r"--repeats: 0: must be >= 1"),
+    ("bench loader {fx}/nodataset --random-frames=-1", r"--random-frames: -1: must be >= 0"),
     # --- bench scale
     ("bench scale --executors=", r"--executors.*at least one"),
     ("bench scale --executors=pool,pool", r"--executors.*twice"),
@@ -392,7 +397,7 @@ def test_enough_cases():
     assert len(CASES) >= 80
     for command in ("detectability", "dataset", "detect", "score", "compare", "camera show",
                     "camera project", "camera import", "lens measure", "bench detectability",
-                    "bench dataset", "bench pipeline", "bench render"):  # fmt: skip
+                    "bench dataset", "bench pipeline", "bench render", "bench loader"):  # fmt: skip
         assert any(c.startswith(command) for c in commands), command
 
 

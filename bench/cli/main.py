@@ -41,6 +41,7 @@ from bench.cli.exits import bug_report, end_quietly, stdout_closed
 from bench.cli.images import add_images_parser
 from bench.cli.ladder import add_ladder_parser
 from bench.cli.lens import add_lens_parser
+from bench.cli.loader import add_bench_loader_parser
 from bench.cli.render import add_bench_render_parser
 from bench.cli.scale import add_scale_options, cmd_bench_scale
 from bench.common.manifest import input_digests, whiskerbench_version
@@ -375,6 +376,7 @@ def _parser() -> argparse.ArgumentParser:
     add_scale_options(bscale)
     bscale.set_defaults(func=_cmd_bench_scale)
     add_bench_render_parser(bench_sub)
+    add_bench_loader_parser(bench_sub)
     add_camera_parser(sub, _Parser)
     add_lens_parser(sub, _Parser)
     add_images_parser(sub)

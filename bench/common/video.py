@@ -195,7 +195,7 @@ def read_video(path: Path) -> Iterator[np.ndarray]:
     decoded than the container declares (a truncated or damaged file), so that a consumer never
     silently gets part of a video.
     """
-    cap = _open(path)
+    cap = open_capture(path)
     declared = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
     count = 0
     try:
@@ -218,7 +218,7 @@ def video_info(path: Path) -> VideoInfo:
     it (a seek, cheap); otherwise frames are counted by decoding them all, and a count below the
     declared one (data cut off after the index) is an error.
     """
-    cap = _open(path)
+    cap = open_capture(path)
     try:
         declared = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
         fps = float(cap.get(cv2.CAP_PROP_FPS))
@@ -233,7 +233,8 @@ def video_info(path: Path) -> VideoInfo:
     return VideoInfo(count, fps, width, height)
 
 
-def _open(path: Path) -> cv2.VideoCapture:
+def open_capture(path: Path) -> cv2.VideoCapture:
+    """An opened FFmpeg capture of ``path``: FileNotFoundError, or ValueError in one line."""
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(path)
@@ -256,7 +257,7 @@ def _ends_at(cap: cv2.VideoCapture, count: int) -> bool:
 
 
 def _count_by_decoding(path: Path) -> int:
-    cap = _open(path)
+    cap = open_capture(path)
     try:
         count = 0
         while cap.grab():

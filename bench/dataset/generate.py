@@ -12,6 +12,7 @@ from bench.common.executor import TaskPool, effective_executor
 from bench.common.manifest import sha256
 from bench.common.resumable import finish_run, open_run
 from bench.dataset.config import DatasetConfig, DatasetConfigError, SampleSpec
+from bench.dataset.format import FORMAT_VERSION
 from bench.dataset.sample import run_sample, sample_done
 from renderers.variant import init_worker
 
@@ -89,6 +90,7 @@ def run_dataset(
     }
     return finish_run(  # "config": its "camera" is the whole profile
         run,
+        format_version=FORMAT_VERSION,  # docs/dataset_format.md; not in the settings hash
         seed=config.seed,
         variant=chosen,
         inputs=inputs,

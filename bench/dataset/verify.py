@@ -20,6 +20,7 @@ from tqdm import tqdm
 
 from bench.common.manifest import MANIFEST, kind_of, read_manifest, sha256
 from bench.dataset.config import SAMPLE_FILES
+from bench.dataset.format import DatasetFormatError, check_format_version
 
 #: A sample id: a plain folder name (no separator, no leading dot, so never ``..``).
 SAMPLE_ID = re.compile(r"[A-Za-z0-9][A-Za-z0-9._+-]*")
@@ -36,8 +37,9 @@ RECORD_KEYS = (
 )
 
 
-class DatasetIntegrityError(ValueError):
-    """A dataset whose files do not match its recorded hashes, or that is not a dataset."""
+class DatasetIntegrityError(DatasetFormatError):
+    """A dataset whose files do not match its recorded hashes, or that is not a dataset (a
+    :class:`~bench.dataset.format.DatasetFormatError`, so a ValueError)."""
 
 
 @dataclass(frozen=True)
@@ -69,7 +71,8 @@ def verify_dataset(folder: Path, progress: bool = False) -> VerifiedDataset:
     """Hash every file of every sample and compare with the manifest and ``sample.json``.
 
     Raises DatasetIntegrityError (one line naming the file) on the first disagreement, a sample
-    missing from the manifest or listed there but absent, or an unfinished dataset.
+    missing from the manifest or listed there but absent, or an unfinished dataset; a
+    DatasetFormatError for a dataset of a newer major format version.
     """
     folder = Path(folder)
     manifest_path = folder / MANIFEST
@@ -78,6 +81,7 @@ def verify_dataset(folder: Path, progress: bool = False) -> VerifiedDataset:
         raise DatasetIntegrityError(
             f"{manifest_path}: no dataset manifest (not a folder made by `whiskerbench dataset`)"
         )
+    check_format_version(manifest, manifest_path)  # a newer major version: not read here
     if not isinstance(manifest.get("files"), dict) or not isinstance(manifest.get("samples"), list):
         raise DatasetIntegrityError(
             f"{manifest_path}: the dataset run did not finish; rerun `whiskerbench dataset`"
@@ -117,7 +121,7 @@ def _verify_sample(folder: Path, sample_id: str, files: dict, digests: dict[str,
                 f"{path}: SHA-256 differs from the dataset manifest (swapped or edited?)"
             )
         if name == "sample.json":
-            record = _read_record(record_path, sample_id)
+            record = read_record(record_path, sample_id)
         elif record["files"].get(name) != digest:
             raise DatasetIntegrityError(
                 f"{path}: SHA-256 differs from {record_path.name}'s (swapped or edited?)"
@@ -125,7 +129,9 @@ def _verify_sample(folder: Path, sample_id: str, files: dict, digests: dict[str,
     return record
 
 
-def _read_record(path: Path, sample_id: str) -> dict:
+def read_record(path: Path, sample_id: str) -> dict:
+    """A ``sample.json`` (at ``path``, of ``sample_id``) with the keys scoring reads, checked;
+    DatasetIntegrityError in one line naming the file otherwise. Its hashes are not checked."""
     try:
         record = json.loads(path.read_text())
     except (OSError, ValueError) as exc:
