@@ -19,17 +19,12 @@ import whiskerbench
 
 ROOT = Path(__file__).resolve().parents[1]
 NAMES = list(whiskerbench._API)
-#: Names whose home another branch is writing (issue 23: bench/dataset/loader.py); skipped until
-#: it lands. A name outside this set whose module is missing fails: a typo in the table.
-PENDING = {"open_dataset"}
 HEAVY = ("mitsuba", "drjit")
 
 
 def resolve(name: str):
     module = whiskerbench._API[name].partition(":")[0]
-    if importlib.util.find_spec(module) is None:
-        assert name in PENDING, f"{name}: its module {module} does not exist"
-        pytest.skip(f"{module} is not in this checkout yet")
+    assert importlib.util.find_spec(module) is not None, f"{name}: no module {module}"
     return getattr(whiskerbench, name)
 
 
