@@ -19,6 +19,7 @@ from bench.common.video import read_video
 from bench.dataset.format import FORMAT_VERSION, DatasetFormatError, check_format_version
 from bench.dataset.loader import Frame, open_dataset
 from bench.dataset.verify import DatasetIntegrityError
+from scenes.tables import CORNER_COLUMNS
 
 ROOT = Path(__file__).resolve().parents[1]
 LONG, SHORT = SAMPLES  # 64 frames (three keyframes: 0, 30, 60), 5 frames
@@ -258,7 +259,7 @@ def test_a_sample_refuses_in_one_line_naming_the_file(copy, how, name) -> None:
     elif how == "camera field":
         _edit_json(folder / "camera.json", lens={"model": {"width_px": 96}})
     elif how == "labels column":
-        pd.read_parquet(folder / "labels.parquet").drop(columns="c0_x_px").to_parquet(
+        pd.read_parquet(folder / "labels.parquet").drop(columns=CORNER_COLUMNS[0][0]).to_parquet(
             folder / "labels.parquet"
         )
     elif how == "labels text":

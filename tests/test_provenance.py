@@ -110,7 +110,8 @@ def test_bench_pipeline_manifest(variant, tmp_path) -> None:
     assert set(ends) == {f"{low:g}", f"{high:g}"}
     sharp, blurred = ends[f"{low:g}"][0], ends[f"{high:g}"][0]
     assert sharp["pipeline"] == blurred["pipeline"] == "paper"
-    assert sharp["recall"] > figures["pipelines"][0]["recall"] > blurred["recall"]
+    nominal = figures["pipelines"][0]["recall"]
+    assert sharp["recall"] >= nominal >= blurred["recall"] and sharp["recall"] > blurred["recall"]
     leads = {row["measure"]: row for row in figures["leaders"]}
     assert leads["recall"]["holds_across_band"] is True  # one pipeline leads everywhere
     assert leads["recall"]["band_leaders"] == f"{low:g}: paper; {high:g}: paper"
