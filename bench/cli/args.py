@@ -10,6 +10,7 @@ import argparse
 import math
 import re
 import socket
+import time
 from pathlib import Path
 
 from bench.common.atomic import check_writable
@@ -137,10 +138,12 @@ _SCHEDULER = re.compile(r"tcp://(?P<host>[A-Za-z0-9.-]+|\[[0-9A-Fa-f:]+\]):(?P<p
 
 
 def check_executor(executor: str | None, scheduler: str | None) -> str:
-    """The executor the options name; a ``--scheduler`` must be well formed and answer.
+    """The executor the options name; a ``--scheduler`` must be well formed and usable.
 
-    FieldError naming the option otherwise, before any work: a scheduler that does not accept
-    a connection within :data:`CONNECT_TIMEOUT_S` is reported, not waited on.
+    FieldError naming the option otherwise, before any work: an address that does not answer
+    as a Dask scheduler with at least one worker within :data:`CONNECT_TIMEOUT_S` in all (any
+    listening port, a scheduler without workers) is reported, not waited on, since the run
+    would otherwise hang on it.
     """
     if scheduler is None:
         return executor or "pool"
@@ -152,13 +155,32 @@ def check_executor(executor: str | None, scheduler: str | None) -> str:
             "scheduler", f"{scheduler!r}: must be tcp://HOST:PORT with PORT in 1..65535"
         )
     host = match["host"].strip("[]")
-    try:
+    deadline = time.monotonic() + CONNECT_TIMEOUT_S
+    waited = f"waited up to {CONNECT_TIMEOUT_S} s"
+    try:  # fast and plain when nothing listens: the Dask client would retry until the deadline
         socket.create_connection((host, int(match["port"])), CONNECT_TIMEOUT_S).close()
     except OSError as exc:
         reason = exc.strerror or type(exc).__name__
         raise FieldError(
             "scheduler",
-            f"{scheduler}: no scheduler answers ({reason}; waited up to {CONNECT_TIMEOUT_S} s); "
+            f"{scheduler}: no scheduler answers ({reason}; {waited}); "
             "start one with `dask scheduler`",
         ) from None
+    from bench.common.dask_backend import scheduler_workers  # distributed: slow to import
+
+    try:
+        workers = scheduler_workers(scheduler, max(deadline - time.monotonic(), 0.1))
+    except Exception as exc:  # any peer that is not a scheduler, however it fails
+        reason = (str(exc).strip().splitlines() or [type(exc).__name__])[0][:120]
+        raise FieldError(
+            "scheduler",
+            f"{scheduler}: accepts connections but no Dask scheduler answers ({reason}; "
+            f"{waited}); start one with `dask scheduler`",
+        ) from None
+    if workers == 0:
+        raise FieldError(
+            "scheduler",
+            f"{scheduler}: the scheduler has no workers ({waited}); "
+            f"start at least one with `dask worker {scheduler}`",
+        )
     return "dask"

@@ -273,6 +273,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     from bench.evaluate.leaders import band_lines
     from bench.evaluate.score import dataset_family
     from bench.evaluate.sweep_config import QUICK_SWEEP, SweepConfig
+    from bench.study.config import alphas_within
     from pipeline.backends import BackendUnavailableError
 
     def fail(message: str) -> int:
@@ -302,8 +303,9 @@ def cmd_compare(args: argparse.Namespace) -> int:
     )
     try:
         camera = _sweep_camera(args.camera, args.dataset)
-        if camera is not None:
-            sweep = dataclasses.replace(sweep, camera=camera)
+        if camera is not None:  # the sweep's built-in alphas end at this camera's edge
+            alphas = alphas_within(sweep.alphas_deg, camera)
+            sweep = dataclasses.replace(sweep, camera=camera, alphas_deg=alphas)
         family = dataset_family(args.dataset)
         if family is not None:  # the sweeps render the dataset's marker family
             sweep = dataclasses.replace(sweep, dictionary=family)

@@ -50,6 +50,7 @@ from bench.study.config import (
     DEFAULT_PHIS_DEG,
     DEFAULT_SIZES_MM,
     StudyConfig,
+    alphas_within,
     detector_from_option,
     profile_from_option,
 )
@@ -107,7 +108,8 @@ def _add_study_options(p: argparse.ArgumentParser) -> None:
         type=float_list("--alphas"),
         metavar="DEG,...",
         help="angular positions in degrees, 0..theta_max (default "
-        f"{','.join(f'{a:g}' for a in DEFAULT_ALPHAS_DEG)})",
+        f"{','.join(f'{a:g}' for a in DEFAULT_ALPHAS_DEG)}, each past the camera's theta_max "
+        "replaced by theta_max)",
     )
     p.add_argument(
         "--phis",
@@ -202,13 +204,13 @@ def _add_study_options(p: argparse.ArgumentParser) -> None:
 
 
 def study_config(args: argparse.Namespace) -> StudyConfig:
-    """The StudyConfig the options describe (--quick fills what was not given)."""
+    """The StudyConfig the options describe (--quick fills what was not given; alphas_within)."""
     quick = QUICK if args.quick else {}
     lightings = tuple(name for item in args.lighting for name in item.split(",") if name)
     camera = profile_from_option(args.camera)
     return StudyConfig(
         sizes_mm=args.sizes or quick.get("sizes", DEFAULT_SIZES_MM),
-        alphas_deg=args.alphas or quick.get("alphas", DEFAULT_ALPHAS_DEG),
+        alphas_deg=args.alphas or alphas_within(quick.get("alphas", DEFAULT_ALPHAS_DEG), camera),
         phis_deg=args.phis or quick.get("phis", DEFAULT_PHIS_DEG),
         images=args.images if args.images is not None else quick.get("images", 240),
         distance_mm=args.distance,

@@ -11,7 +11,9 @@ Imported only when the Dask backend is chosen: ``distributed`` is slow to import
 
 from __future__ import annotations
 
+import contextlib
 import threading
+import time
 import uuid
 from collections.abc import Callable, Iterable, Iterator
 from typing import Any
@@ -22,6 +24,40 @@ from bench.common.executor import CONNECT_TIMEOUT_S
 
 _slot: tuple[str, Any] | None = None  # (pool key, its context) in a worker process
 _slot_lock = threading.Lock()
+
+
+def scheduler_workers(address: str, timeout_s: float) -> int:
+    """How many workers the Dask scheduler at ``address`` has, waiting up to ``timeout_s``.
+
+    Bounded even when the peer accepts TCP and never answers: ``Client(timeout=...)`` then
+    waits on the handshake for ever, so the client runs in a daemon thread that is abandoned at
+    the deadline (it holds a socket until the process exits, nothing else). 0 when a scheduler
+    answered but no worker joined it by the deadline; TimeoutError when nothing answered as a
+    Dask scheduler; the client's own error when the peer answered but not as a scheduler.
+    """
+    deadline = time.monotonic() + timeout_s
+    result: dict[str, Any] = {}
+    done = threading.Event()
+
+    def probe() -> None:
+        try:
+            with Client(address, timeout=timeout_s, set_as_default=False) as client:
+                result["connected"] = True
+                with contextlib.suppress(TimeoutError):  # none by the deadline: counted below
+                    client.wait_for_workers(1, timeout=max(deadline - time.monotonic(), 0.01))
+                result["workers"] = len(client.scheduler_info()["workers"])
+        except Exception as exc:  # handed to the caller's thread
+            result["error"] = exc
+        finally:
+            done.set()
+
+    threading.Thread(target=probe, name=f"probe {address}", daemon=True).start()
+    done.wait(timeout_s)
+    if "workers" in result or "connected" in result:  # a scheduler, maybe closing at the deadline
+        return result.get("workers", 0)
+    if "error" in result:
+        raise result["error"]
+    raise TimeoutError("no reply")
 
 
 def _run_on_worker(

@@ -36,6 +36,15 @@ POSE_IMAGES = 80
 MAX_DISTANCE_MM = 10_000.0
 
 
+def alphas_within(alphas: tuple[float, ...], camera: CameraProfile) -> tuple[float, ...]:
+    """A default alpha grid fitted to ``camera``: each alpha past its theta_max becomes
+    theta_max itself (once), so a lens whose image circle is under 90 deg is studied up to its
+    edge, as the default grid studies the prototype's, instead of refused for an option the user
+    never gave. A grid within the lens is returned unchanged."""
+    theta_max = camera.lens.theta_max_deg
+    return tuple(dict.fromkeys(min(a, theta_max) for a in alphas))
+
+
 class StudyConfigError(FieldError):
     """A bad study setting; ``field`` names the StudyConfig field it concerns."""
 
