@@ -74,7 +74,9 @@ def test_speed_from_the_files_times_or_fps(fake, truth, tmp_path) -> None:
     assert np.allclose(_samples(tmp_path / "b")["frames_per_s"], 31.5)
 
 
-def test_a_folder_of_parquet_files_with_poses_and_the_dataset_hash(fake, truth, tmp_path) -> None:
+def test_a_folder_of_parquet_files_with_poses_and_the_dataset_hash(
+    fake, truth, tmp_path, capsys
+) -> None:
     folder = tmp_path / "results"
     folder.mkdir()
     digest = sha256(fake / "manifest.json")
@@ -84,6 +86,18 @@ def test_a_folder_of_parquet_files_with_poses_and_the_dataset_hash(fake, truth, 
     assert _score(fake, folder, tmp_path / "out") == 0
     long = _samples(tmp_path / "out").loc[LONG]
     assert long["recall"] == 1 and long["rot_err_deg"] < 1e-6 and long["trans_err_mm"] < 1e-9
+    empty = truth[:0].drop(columns=["sample_id", *POSE])  # a header only: nothing found
+    for sample_id in SAMPLES:
+        (folder / f"{sample_id}.parquet").unlink()
+    empty.to_csv(folder / f"{SHORT}.csv", index=False)
+    truth[truth["sample_id"] == LONG].drop(columns=POSE).to_csv(folder / f"{LONG}.csv")
+    assert _score(fake, folder, tmp_path / "again") == 2  # the CSV's index: an extra column
+    assert "column 'Unnamed: 0' is not in the format" in capsys.readouterr().err
+    truth[truth["sample_id"] == LONG].drop(columns=POSE).to_csv(folder / f"{LONG}.csv", index=False)
+    assert _score(fake, folder, tmp_path / "again") == 0
+    table = _samples(tmp_path / "again")
+    assert table.loc[SHORT, "outcome"] == "refused" and table.loc[LONG, "recall"] == 1
+    assert "no marker" in table.loc[SHORT, "refused_reason"]
 
 
 def _break(table: pd.DataFrame, how: str) -> pd.DataFrame:

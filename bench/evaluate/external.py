@@ -20,6 +20,7 @@ from bench.common.atomic import atomic_path, write_json
 from bench.common.manifest import RunClock, build_manifest, claim, hash_files, write_manifest
 from bench.evaluate.detect import estimate, gap_positions, plot_estimate
 from bench.evaluate.results_file import CORNERS, POSE
+from pipeline.deflection import NoBaselineError
 from pipeline.pose import estimate_pose
 from pipeline.presets import PipelineConfig
 from scenes.array import ArraySpec
@@ -87,6 +88,8 @@ def run_external(
     claim(out_dir, "detect")
     array = array or ArraySpec()
     tracked, foreign, failures = track_table(rows, camera, array, config.pose_method)
+    if tracked.empty:  # nothing found: no rest pose to measure from (a refused sample)
+        raise NoBaselineError("the results hold no marker of the array with a pose, in any frame")
     est, source = estimate(tracked, n_frames, array.n_whiskers, config, threshold_mm)
     f, w = tracked["frame"].to_numpy(), tracked["whisker"].to_numpy()
     estimated = {"deflection_mm": est.deflection[f, w], "contact": est.contact[f, w]}
