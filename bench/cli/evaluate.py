@@ -12,6 +12,7 @@ from pathlib import Path
 
 from bench.cli import limits
 from bench.cli.args import add_executor_options, check_executor, check_out_folder, name_list
+from bench.cli.results import add_results_options, cmd_score_results, wants_results
 from pipeline.backends import PEERS_INSTALL
 from pipeline.presets import CHOICES, PRESETS, PipelineConfig, get_pipeline
 from renderers.variant import VARIANTS
@@ -144,6 +145,7 @@ def add_score_options(p: argparse.ArgumentParser) -> None:
         help=VARIANT_HELP + " (default paper)",
     )
     p.add_argument("--out", type=Path, help="output folder (default <dataset>/scores/<pipeline>)")
+    add_results_options(p)
     _add_workers_options(p, "one sample each")
 
 
@@ -165,6 +167,12 @@ def cmd_score(args: argparse.Namespace) -> int:
         print(f"whiskerbench score: error: {' '.join(message.split())}", file=sys.stderr)
         return 2
 
+    if wants_results(args):  # another tool's detections: no detector runs
+        try:
+            executor = _check_workers(args)
+        except FieldError as exc:
+            return fail(f"--{exc.field}: {exc.detail}")
+        return cmd_score_results(args, fail, executor)
     if not args.dataset.is_dir():
         return fail(f"{args.dataset}: not a dataset folder")
     missing = _missing_detector(args.pipeline)

@@ -41,6 +41,7 @@ from bench.common.manifest import (  # noqa: E402
     write_manifest,
 )
 from bench.dataset.verify import VerifiedDataset, verify_dataset  # noqa: E402
+from bench.evaluate.results_file import ExternalDetections, frames_per_s  # noqa: E402
 from pipeline.presets import PipelineConfig  # noqa: E402
 from scenes.array import ArraySpec  # noqa: E402
 from scenes.marker import check_dictionary  # noqa: E402
@@ -214,25 +215,14 @@ class _SampleTask:
     threshold: float | None
     threshold_source: str  # where ``threshold`` came from (when it is not None)
     video_sha256: str
+    external: pd.DataFrame | None = None  # another tool's detections: no detector runs
+    frames_per_s: float | None = None  # theirs (None: accuracy only)
 
 
-def _score_sample(task: _SampleTask, _context: None) -> tuple[dict, float | None]:
-    """The sample's row of ``samples.csv``, and its foliage threshold if it has no branch."""
-    from bench.common.video import video_info
-    from bench.evaluate.detect import run_detect
-    from pipeline.branches import foliage_threshold
-    from pipeline.deflection import NoBaselineError
-    from scenes.profile import load_profile
-
-    record, folder = task.record, task.folder
-    sample_id = record["sample_id"]
-    labels = pd.read_parquet(folder / "labels.parquet")
-    check_table(labels, LABELS, folder / "labels.parquet")
-    if video_info(folder / "video.mp4").frame_count != labels["frame"].nunique():
-        raise ValueError(f"{sample_id}: the labels do not match the video's frame count")
-    camera = load_profile(folder / "camera.json").lens  # a profile, or an old bare camera
-    common = {
-        "sample_id": sample_id,
+def sample_columns(record: dict) -> dict:
+    """The columns of ``samples.csv`` that say what a sample is (from its ``sample.json``)."""
+    return {
+        "sample_id": record["sample_id"],
         "foliage": record["foliage"],
         "distance": record["distance"],
         "branches": "+".join(f"{b:g}" for b in record["branches_mm"]) or "none",
@@ -241,17 +231,43 @@ def _score_sample(task: _SampleTask, _context: None) -> tuple[dict, float | None
         "foliage_group": record.get("foliage_group", ""),
         "true_gaps": json.dumps(record["branch_gaps"]),
     }
+
+
+def _score_sample(task: _SampleTask, _context: None) -> tuple[dict, float | None]:
+    """The sample's row of ``samples.csv``, and its foliage threshold if it has no branch."""
+    from bench.common.video import video_info
+    from bench.evaluate.detect import run_detect
+    from bench.evaluate.external import run_external
+    from pipeline.branches import foliage_threshold
+    from pipeline.deflection import NoBaselineError
+    from scenes.profile import load_profile
+
+    record, folder = task.record, task.folder
+    sample_id = record["sample_id"]
+    labels = pd.read_parquet(folder / "labels.parquet")
+    check_table(labels, LABELS, folder / "labels.parquet")
+    n_frames = video_info(folder / "video.mp4").frame_count
+    if n_frames != labels["frame"].nunique():
+        raise ValueError(f"{sample_id}: the labels do not match the video's frame count")
+    camera = load_profile(folder / "camera.json").lens  # a profile, or an old bare camera
+    common = sample_columns(record)
     out = task.out_dir / sample_id
     try:
-        result = run_detect(
-            folder / "video.mp4",
-            camera,
-            task.config,
-            out,
-            task.threshold,
-            array=_array(record),
-            video_sha256=task.video_sha256,
-        )
+        if task.external is None:
+            result = run_detect(
+                folder / "video.mp4",
+                camera,
+                task.config,
+                out,
+                task.threshold,
+                array=_array(record),
+                video_sha256=task.video_sha256,
+            )
+        else:  # the stages after detection on another tool's detections
+            result = run_external(
+                task.external, camera, task.config, out, n_frames, task.threshold,
+                _array(record), task.frames_per_s, record["branch_gaps"],
+            )  # fmt: skip
     except NoBaselineError as exc:  # flagged and reported, never scored as an answer
         return {**common, "outcome": "refused", "refused_reason": str(exc)}, None
     detections = pd.read_parquet(out / "detections.parquet")
@@ -287,6 +303,8 @@ def score_dataset(
     executor: str = "pool",
     scheduler: str | None = None,
     pool: TaskPool | None = None,
+    external: ExternalDetections | None = None,
+    fps: float | None = None,
 ) -> pd.DataFrame:
     """Run ``config`` on every sample and score it; write ``samples.csv`` and the grids.
 
@@ -301,13 +319,17 @@ def score_dataset(
     command's) and every file of every sample is checked against its recorded SHA-256
     (DatasetIntegrityError naming the file), unless ``verified`` says it was, in this command;
     ``manifest.json`` is written last.
+    With ``external`` (another tool's detections, validated) no detector runs: ``config``'s
+    stages after detection run on them (no family check), frames/s is ``fps`` or the file's
+    times, else NaN (accuracy only; the grids say so).
     The samples are tasks on ``executor`` (:class:`~bench.common.executor.TaskPool`), or on
     ``pool`` when the caller keeps one for several pipelines (``compare``): the no-branch twins
     first, then the others with their twins' thresholds.
     """
 
     dataset, out_dir = Path(dataset), Path(out_dir)
-    config = for_family(config, dataset_family(dataset))  # refused here, before any work
+    if external is None:
+        config = for_family(config, dataset_family(dataset))  # refused here, before any work
     clock = RunClock()
     claim(out_dir, "score")
     verified = verified or verify_dataset(dataset)
@@ -335,6 +357,7 @@ def score_dataset(
                         thresholds.get(twin) if fixed else None,
                         source,
                         verified.digests[f"{sample_id}/video.mp4"],
+                        *_external_of(external, sample_id, fps),
                     )
                 )
             desc = f"score {config.name}" + ("" if twins else " (branches)")
@@ -346,23 +369,39 @@ def score_dataset(
     table = table.reindex(columns=[*table, *(c for c in SCORED_COLUMNS if c not in table)])
     with atomic_path(out_dir / "samples.csv") as tmp:
         table.to_csv(tmp, index=False)
+    untimed = external is not None and table["frames_per_s"].isna().all()
     for (protocol, lighting), part in table.groupby(["protocol", "lighting"]):
         plot_grid(
             part,
             out_dir / f"grid-{protocol}-{lighting}.png",
-            f"{config.name}: {protocol}, {lighting}",
+            f"{config.name}: {protocol}, {lighting}" + (" (accuracy only)" if untimed else ""),
         )
     written = [out_dir / "samples.csv", *out_dir.glob("grid-*.png")]
+    settings = {"pipeline": config.to_json(), "dataset": str(dataset)}
+    inputs = verified.inputs()
+    if external is not None:
+        settings["results"] = {"source": str(external.source), "fps": fps, "timed": not untimed}
+        inputs.update(external.files)
     record = build_manifest(
         "score",
         clock,
-        {"pipeline": config.to_json(), "dataset": str(dataset)},
-        inputs=verified.inputs(),
+        settings,
+        inputs=inputs,
         outputs=hash_files(written, out_dir),
         **ran_on,
     )
     write_manifest(out_dir, record)
     return table
+
+
+def _external_of(
+    external: ExternalDetections | None, sample_id: str, fps: float | None
+) -> tuple[pd.DataFrame | None, float | None]:
+    """A sample's rows of another tool's detections and their frames/s (None, None: none)."""
+    if external is None:
+        return None, None
+    rows = external.tables[sample_id]
+    return rows, frames_per_s(rows, fps)
 
 
 def plot_grid(table: pd.DataFrame, path: Path, title: str) -> None:
