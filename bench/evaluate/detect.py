@@ -95,37 +95,63 @@ def run_detect(
         read_video(video), camera, markers, config.detector, config.search, config.pose_method
     )
     track_s = time.perf_counter() - t0
-    est, source = estimate(result.detections, result.frames, array.n_whiskers, config, threshold_mm)
-    tracked = result.detections
-    f, w = tracked["frame"].to_numpy(), tracked["whisker"].to_numpy()
-    estimated = {"deflection_mm": est.deflection[f, w], "contact": est.contact[f, w]}
-    table = pd.DataFrame(ordered(DETECTIONS, {**tracked.to_dict("series"), **estimated}))
-    with atomic_path(out_dir / "detections.parquet") as tmp:
-        table.to_parquet(tmp, index=False)
     truth = _truth_gaps(video)
-    record = {
+    facts = {
         "video": str(video),
-        "pipeline": config.to_json(),
-        "frames": result.frames,
         "track_s": track_s,
         "frames_per_s": result.frames / track_s if track_s > 0 else None,
-        "threshold_mm": est.threshold_mm,
-        "threshold_source": source,
-        "branches": gap_positions(est.gaps, array),
-        "peaks": est.peaks,
-        "unseen_markers": est.unseen_markers,
         "foreign_ids": result.foreign_ids,
         "pose_failures": result.pose_failures,
         "detector": config.detector.backend,
         "failed_frames": result.failed_frames,  # the backend crashed: no detections there
         "refine_failures": dict(result.refine_failures),
-        "true_gaps": truth,
     }
-    write_json(out_dir / "branches.json", record)
-    plot_estimate(est, out_dir / "branches.png", truth, video.parent.name)
     inputs = {str(video): video_sha256 or sha256(video)}
     if truth is not None:
         inputs[str(video.parent / "sample.json")] = sha256(video.parent / "sample.json")
+    return write_estimate(
+        out_dir, clock, result.detections, result.frames, camera, config, array, threshold_mm,
+        truth, video.parent.name, facts, inputs,
+    )  # fmt: skip
+
+
+def write_estimate(
+    out_dir: Path,
+    clock: RunClock,
+    tracked: pd.DataFrame,
+    n_frames: int,
+    camera: FisheyeCamera,
+    config: PipelineConfig,
+    array: ArraySpec,
+    threshold_mm: float | None,
+    truth: list[list[int]] | None,
+    title: str,
+    facts: dict,
+    inputs: dict[str, str] | None = None,
+) -> dict:
+    """The stages after tracking, shared by a pipeline's detections and a results file's
+    (:mod:`bench.evaluate.external`): deflection, contact and branches from the tracked table,
+    then ``detections.parquet``, ``branches.json`` (``facts``: what the tracking adds) and
+    ``branches.png`` and the manifest; returns branches.json's content."""
+    est, source = estimate(tracked, n_frames, array.n_whiskers, config, threshold_mm)
+    f, w = tracked["frame"].to_numpy(), tracked["whisker"].to_numpy()
+    estimated = {"deflection_mm": est.deflection[f, w], "contact": est.contact[f, w]}
+    table = pd.DataFrame(ordered(DETECTIONS, {**tracked.to_dict("series"), **estimated}))
+    with atomic_path(out_dir / "detections.parquet") as tmp:
+        table.to_parquet(tmp, index=False)
+    record = {
+        "pipeline": config.to_json(),
+        "frames": n_frames,
+        "threshold_mm": est.threshold_mm,
+        "threshold_source": source,
+        "branches": gap_positions(est.gaps, array),
+        "peaks": est.peaks,
+        "unseen_markers": est.unseen_markers,
+        **facts,
+        "true_gaps": truth,
+    }
+    write_json(out_dir / "branches.json", record)
+    plot_estimate(est, out_dir / "branches.png", truth, title)
     config_record = {
         "pipeline": config.to_json(),
         "camera": dataclasses.asdict(camera),

@@ -10,22 +10,20 @@ deflection, contact and branches as in ``detect``. It writes the same ``detectio
 
 from __future__ import annotations
 
-import dataclasses
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
-from bench.common.atomic import atomic_path, write_json
-from bench.common.manifest import RunClock, build_manifest, claim, hash_files, write_manifest
-from bench.evaluate.detect import estimate, gap_positions, plot_estimate
+from bench.common.manifest import RunClock, claim
+from bench.evaluate.detect import write_estimate
 from bench.evaluate.results_file import CORNERS, POSE
 from pipeline.deflection import NoBaselineError
 from pipeline.pose import estimate_pose
 from pipeline.presets import PipelineConfig
 from scenes.array import ArraySpec
 from scenes.camera import FisheyeCamera
-from scenes.tables import DETECTIONS, OWN_POSE_PREFIX, TRACK, corners_of, ordered, pose_values
+from scenes.tables import OWN_POSE_PREFIX, TRACK, corners_of, ordered, pose_values
 
 
 def track_table(
@@ -90,37 +88,15 @@ def run_external(
     tracked, foreign, failures = track_table(rows, camera, array, config.pose_method)
     if tracked.empty:  # nothing found: no rest pose to measure from (a refused sample)
         raise NoBaselineError("the results hold no marker of the array with a pose, in any frame")
-    est, source = estimate(tracked, n_frames, array.n_whiskers, config, threshold_mm)
-    f, w = tracked["frame"].to_numpy(), tracked["whisker"].to_numpy()
-    estimated = {"deflection_mm": est.deflection[f, w], "contact": est.contact[f, w]}
-    table = pd.DataFrame(ordered(DETECTIONS, {**tracked.to_dict("series"), **estimated}))
-    with atomic_path(out_dir / "detections.parquet") as tmp:
-        table.to_parquet(tmp, index=False)
-    record = {
-        "pipeline": config.to_json(),
-        "frames": n_frames,
+    facts = {
         "frames_per_s": frames_per_s,  # None: the results carry no timing (accuracy only)
-        "threshold_mm": est.threshold_mm,
-        "threshold_source": source,
-        "branches": gap_positions(est.gaps, array),
-        "peaks": est.peaks,
-        "unseen_markers": est.unseen_markers,
         "foreign_ids": foreign,
         "pose_failures": failures,
         "detector": "external",
         "failed_frames": [],
         "refine_failures": {},
-        "true_gaps": truth,
     }
-    write_json(out_dir / "branches.json", record)
-    plot_estimate(est, out_dir / "branches.png", truth, out_dir.name)
-    config_record = {
-        "pipeline": config.to_json(),
-        "camera": dataclasses.asdict(camera),
-        "array": array.to_json(),
-        "threshold_mm": threshold_mm,
-    }
-    written = [out_dir / n for n in ("detections.parquet", "branches.json", "branches.png")]
-    manifest = build_manifest("detect", clock, config_record, outputs=hash_files(written, out_dir))
-    write_manifest(out_dir, manifest)
-    return record
+    return write_estimate(
+        out_dir, clock, tracked, n_frames, camera, config, array, threshold_mm, truth,
+        out_dir.name, facts,
+    )  # fmt: skip
