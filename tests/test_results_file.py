@@ -103,15 +103,15 @@ def test_a_folder_of_parquet_files_with_poses_and_the_dataset_hash(
 def _break(table: pd.DataFrame, how: str) -> pd.DataFrame:
     t = table.copy()
     if how == "missing column":
-        return t.drop(columns="c2_x_px")
+        return t.drop(columns=CORNERS[4])
     if how == "extra column":
         return t.assign(confidence=1.0)
     if how == "some pose columns":
-        return t.drop(columns="R_cam_marker_11")
+        return t.drop(columns=POSE[4])
     if how in ("nan corner", "inf corner"):
-        t.loc[3, "c1_y_px"] = math.nan if how == "nan corner" else math.inf
+        t.loc[3, CORNERS[3]] = math.nan if how == "nan corner" else math.inf
     elif how == "corner outside":
-        t.loc[3, "c0_x_px"] = 1e4
+        t.loc[3, CORNERS[0]] = 1e4
     elif how == "text frame":
         t["frame"] = t["frame"].astype(str)
         t.loc[3, "frame"] = "four"
@@ -131,12 +131,12 @@ def _break(table: pd.DataFrame, how: str) -> pd.DataFrame:
 
 
 BROKEN = {  # how: what the one line must name
-    "missing column": "'c2_x_px' is missing",
+    "missing column": f"'{CORNERS[4]}' is missing",
     "extra column": "'confidence' is not in the format",
-    "some pose columns": "'R_cam_marker_11' is missing",
-    "nan corner": "row 4: column 'c1_y_px'",
-    "inf corner": "row 4: column 'c1_y_px'",
-    "corner outside": "row 4: column 'c0_x_px'",
+    "some pose columns": f"'{POSE[4]}' is missing",
+    "nan corner": f"row 4: column '{CORNERS[3]}'",
+    "inf corner": f"row 4: column '{CORNERS[3]}'",
+    "corner outside": f"row 4: column '{CORNERS[0]}'",
     "text frame": "row 4: column 'frame'",
     "unknown marker id": "row 4: column 'marker_id'",
     "duplicate row": "a second row",
@@ -211,6 +211,8 @@ import sys, time
 import cv2, pandas as pd
 from whiskerbench import open_dataset
 
+corner_names = sys.argv[3].split(",")  # the format's c0_x .. c3_y column names, in order
+
 detector = cv2.aruco.ArucoDetector(cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_50))
 rows = []
 for sample in open_dataset(sys.argv[1]):
@@ -221,7 +223,7 @@ for sample in open_dataset(sys.argv[1]):
         for marker_id, quad in zip([] if ids is None else ids.ravel(), corners):
             row = {"sample_id": sample.id, "frame": frame.index, "marker_id": int(marker_id)}
             for k, (x, y) in enumerate(quad.reshape(4, 2)):
-                row[f"c{k}_x_px"], row[f"c{k}_y_px"] = float(x), float(y)
+                row[corner_names[2 * k]], row[corner_names[2 * k + 1]] = float(x), float(y)
             rows.append({**row, "frame_time_s": spent})
 pd.DataFrame(rows).to_csv(sys.argv[2], index=False)
 """
@@ -238,7 +240,8 @@ def test_plain_opencv_results_score_as_the_equivalent_built_in_pipeline(
 
     script, results = tmp_path / "plain_opencv.py", tmp_path / "plain.csv"
     script.write_text(PLAIN_OPENCV)
-    subprocess.run([sys.executable, str(script), str(rendered_pair), str(results)], check=True)
+    argv = [sys.executable, str(script), str(rendered_pair), str(results), ",".join(CORNERS)]
+    subprocess.run(argv, check=True)
     built_in, theirs = tmp_path / "naive", tmp_path / "theirs"
     assert main(["score", str(rendered_pair), "--pipeline", "naive", "--out", str(built_in)]) == 0
     assert _score(rendered_pair, results, theirs, "--pipeline", "naive") == 0

@@ -195,8 +195,8 @@ def _check(
 
 def _listing() -> str:
     return (
-        f"{', '.join(REQUIRED[:3])}, c0_x_px .. c3_y_px; optional: the 12 pose columns "
-        f"(R_cam_marker_00 .. t_cam_marker_z_mm), {TIME_COLUMN}, {SHA_COLUMN}"
+        f"{', '.join(REQUIRED[:3])}, {CORNERS[0]} .. {CORNERS[-1]}; optional: the 12 pose "
+        f"columns ({POSE[0]} .. {POSE[-1]}), {TIME_COLUMN}, {SHA_COLUMN}"
     )
 
 
