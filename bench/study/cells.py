@@ -133,11 +133,15 @@ class CellDraws:
         render: CellRender,
         cell: Cell,
         scale: float,
+        rng: np.random.Generator | None = None,
     ):
+        """``rng``: the noise stream; the cell's own for this scale by default."""
         self.renderer, self.render, self.lighting = renderer, render, cell.lighting
         self.exposure = config.exposure * get_lighting(cell.lighting).exposure
         self.profile = config.camera.with_psf_scale(scale)
-        self.rng = np.random.default_rng(cell.seed_sequence(config.seed, scale))
+        if rng is None:
+            rng = np.random.default_rng(cell.seed_sequence(config.seed, scale))
+        self.rng = rng
         self.origin = (render.window.x0, render.window.y0)
         self.optics_s = self.sensor_s = 0.0
         self.steady = None
@@ -178,7 +182,8 @@ def cell_images(
     return images, render.window, render.T_cam_marker
 
 
-def _next_count(n: int, cap: int) -> int:
+def next_count(n: int, cap: int) -> int:
+    """The next cumulative image count of the adaptive draws (:data:`IMAGE_STEPS`), capped."""
     return min(cap, next((s for s in IMAGE_STEPS if s > n), cap))
 
 
@@ -213,7 +218,7 @@ def run_cell(
         rows: list[dict] = []
         k = scored = 0  # right ids, and images the detector did not crash on
         while len(rows) < config.images and not (scored and settled(k, scored)):
-            images = draws.draw(_next_count(len(rows), config.images) - len(rows))
+            images = draws.draw(next_count(len(rows), config.images) - len(rows))
             t0 = time.perf_counter()
             for image in images:
                 pose = pose_scale and len(rows) < POSE_IMAGES

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from bench.common.marker_score import MarkerTruth, find_marker
-from bench.study.config import IMAGE_STEPS, Cell, StudyConfig
+from bench.study.config import Cell, StudyConfig
 from bench.study.report import wilson_interval
 from scenes.observations import Observation
 from scenes.profile import CameraProfile
@@ -74,10 +74,6 @@ def _unit_decided(unit: Unit, observation: Observation) -> bool:
     return above_min and below_max
 
 
-def _next_count(n: int, cap: int) -> int:
-    return min(cap, next((s for s in IMAGE_STEPS if s > n), cap))
-
-
 def _trial_rng(*key: object) -> np.random.Generator:
     """One noise stream per (observation, unit, trial value): reproducible, independent."""
     words = [zlib.crc32(repr(k).encode()) for k in key]
@@ -110,19 +106,19 @@ class MarkerEvidence:
 
     def check(self, profile: CameraProfile, trial: float, observation: Observation) -> Verdict:
         """The observation (whose scene these renders are) checked at the trial profile."""
-        from bench.study.cells import CellDraws
+        from bench.study.cells import CellDraws, next_count
 
         config = dataclasses.replace(self.config, camera=profile)
         lens, o = profile.lens, observation
         units = []
         for cell, render in self.renders.items():
-            draws = CellDraws(config, self.renderer, render, cell, 1.0)
-            draws.rng = _trial_rng(o.id, cell.key, trial)
+            rng = _trial_rng(o.id, cell.key, trial)
+            draws = CellDraws(config, self.renderer, render, cell, 1.0, rng)
             origin = (render.window.x0, render.window.y0)
             truth = MarkerTruth.of(lens, config.marker_id, cell.size_mm, render.T_cam_marker)
             unit = Unit(_cell_label(cell), 0, 0)
             while unit.n < MAX_CELL_IMAGES and not (unit.n and _unit_decided(unit, o)):
-                images = draws.draw(_next_count(unit.n, MAX_CELL_IMAGES) - unit.n)
+                images = draws.draw(next_count(unit.n, MAX_CELL_IMAGES) - unit.n)
                 k = sum(
                     bool(find_marker(im, config.detector, origin, truth, lens)[1]) for im in images
                 )
