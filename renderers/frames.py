@@ -349,10 +349,22 @@ class TwinRecorder:
     def record(self, radiance: np.ndarray) -> np.ndarray:
         """The frame (H, W) of the region's radiance (:meth:`FrameRecorder.radiance`): black
         outside the region."""
+        return self.expose(self.optics(radiance))
+
+    def optics(self, radiance: np.ndarray) -> np.ndarray:
+        """The region's sensor irradiance: the lens stages, deterministic (a still scene's
+        images share it; :meth:`expose` draws each one's noise)."""
+        t0 = time.perf_counter()
+        region = self.region
+        irradiance = optical_image(radiance, self.profile, (region.x0, region.y0), _LENS_STAGES)
+        self.optics_s += time.perf_counter() - t0
+        return irradiance
+
+    def expose(self, irradiance: np.ndarray) -> np.ndarray:
+        """One frame (H, W) of the region's irradiance (:meth:`optics`) through the sensor and
+        stream, with this recorder's next noise; black outside the region."""
         t0 = time.perf_counter()
         lens, region, band = self.profile.lens, self.region, self.band
-        irradiance = optical_image(radiance, self.profile, (region.x0, region.y0), _LENS_STAGES)
-        t1 = time.perf_counter()
         image = np.zeros((lens.height_px, lens.width_px), np.uint8)
         if region != band:
             image[region.y0 : region.y0 + region.height, region.x0 : region.x0 + region.width] = (
@@ -360,8 +372,7 @@ class TwinRecorder:
             )
         rows = slice(band.y0 - region.y0, band.y0 - region.y0 + band.height)
         image[band.y0 : band.y0 + band.height] = self._sensor(irradiance[rows], band, self.rng_band)
-        self.optics_s += t1 - t0
-        self.sensor_s += time.perf_counter() - t1
+        self.sensor_s += time.perf_counter() - t0
         return image
 
 

@@ -163,12 +163,13 @@ class ArrayEvidence:
         self.region, self.band = recorder.renderer.region, recorder.renderer.band
         self.exposure = recorder.exposure
         if rest:  # the still lead-in: one render, every image its own noise
-            self.frames = [recorder.radiance(0)] * o.frames
+            picks = np.zeros(o.frames, int)
         else:  # frames spread over the motion after the lead-in
             start = int(np.searchsorted(sim.times_s, sim.motion.lead_in_s))
             picks = np.linspace(start, len(sim.times_s) - 1, o.frames).round().astype(int)
-            cache = {f: recorder.radiance(f) for f in sorted(set(picks.tolist()))}
-            self.frames = [cache[f] for f in picks]
+        #: each distinct frame's radiance once, and which one each image shows
+        self.radiances = {f: recorder.radiance(f) for f in sorted(set(picks.tolist()))}
+        self.picks = picks.tolist()
 
     def check(self, profile: CameraProfile, trial: float, observation: Observation) -> Verdict:
         """The observation (whose scene these renders are) checked at the trial profile."""
@@ -179,14 +180,15 @@ class ArrayEvidence:
         seed = int(_trial_rng(o.id, trial).integers(1 << 31))
         twin = TwinRecorder(profile, self.region, self.band, self.exposure, seed)
         counts = dict.fromkeys(self.marker_ids, 0)
-        for radiance in self.frames:
-            image = twin.record(radiance)
+        irradiance = {f: twin.optics(r) for f, r in self.radiances.items()}  # lens once a frame
+        for f in self.picks:
+            image = twin.expose(irradiance[f])
             for marker_id in {
                 d.marker_id for d in detect_markers(image, self.detector, camera=profile.lens)
             }:
                 if marker_id in counts:
                     counts[marker_id] += 1
-        n = len(self.frames)
+        n = len(self.picks)
         units = tuple(
             Unit(f"whisker {i} (id {m})", counts[m], n) for i, m in enumerate(self.marker_ids)
         )
