@@ -86,7 +86,7 @@ def _tables(out: Path) -> dict[str, bytes]:
 
 def _finished_cells(folder: Path) -> list[Path]:
     """The study's finished cells: not a killed writer's temporary file, which also ends in
-    .parquet (``.<name>.<pid>.tmp-<random>.parquet``) and which the rerun deletes."""
+    .parquet (``.<name>.<run>-<pid>.tmp-<random>.parquet``) and which the rerun deletes."""
     return [p for p in folder.glob("cells/*.parquet") if not p.name.startswith(".")]
 
 

@@ -21,6 +21,8 @@ from pipeline.presets import PRESETS
 
 BRANCH = "soft-intermediate-100-outdoor-lab"
 TWIN = "soft-intermediate-none-outdoor-lab"
+#: The id of another (killed) run, in its temporary files' names.
+OTHER_RUN = "0123456789ab"
 
 
 @pytest.fixture
@@ -193,11 +195,11 @@ def test_a_killed_runs_temporary_files_are_cleaned_by_the_next_run(
 ) -> None:
     from bench.dataset.generate import run_dataset
 
-    dead = data / BRANCH / f".video.mp4.{_dead_pid()}.tmp-k1lled.mp4"
+    dead = data / BRANCH / f".video.mp4.{OTHER_RUN}-{_dead_pid()}.tmp-k1lled.mp4"
     dead.write_bytes(b"half a video")
     live_child = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
     try:
-        live = data / f".manifest.json.{live_child.pid}.tmp-busy.json"
+        live = data / f".manifest.json.{OTHER_RUN}-{live_child.pid}.tmp-busy.json"
         live.write_bytes(b"another run is writing this")
         # the rendered pair's own config: every sample is skipped
         manifest = run_dataset(pair_config, data, variant=variant, progress=False)
@@ -210,28 +212,34 @@ def test_a_killed_runs_temporary_files_are_cleaned_by_the_next_run(
 
 def test_a_folder_holding_only_a_failed_runs_mark_takes_a_corrected_command(tmp_path) -> None:
     from bench.common.resumable import finish_run, open_run
+    from bench.common.units import write_unit
 
     folder = tmp_path / "run"
-    open_run(folder, "detectability", {"images": 7}, units="cells/*.parquet")
-    assert json.loads((folder / "manifest.json").read_text())["finished"] is None
-    run = open_run(folder, "detectability", {"images": 8}, units="cells/*.parquet")  # no cell yet
-    (folder / "cells").mkdir()
-    (folder / "cells" / "a.parquet").write_bytes(b"cell")
-    finish_run(run)
+    with open_run(folder, "detectability", {"images": 7}, units="cells/*"):
+        assert json.loads((folder / "manifest.json").read_text())["finished"] is None
+    with open_run(folder, "detectability", {"images": 8}, units="cells/*") as run:  # no cell yet
+        (folder / "cells").mkdir()
+        (folder / "cells" / "a.parquet").write_bytes(b"cell")
+        files = {"a.parquet": sha256(folder / "cells" / "a.parquet")}
+        write_unit(
+            folder / "cells" / "a.json", {"settings_sha256": run.settings_sha256, "files": files}
+        )
+        finish_run(run)
     with pytest.raises(ValueError, match="another configuration"):
-        open_run(folder, "detectability", {"images": 9}, units="cells/*.parquet")
+        open_run(folder, "detectability", {"images": 9}, units="cells/*")
     with pytest.raises(ValueError, match="holds the output of `detectability`"):
         open_run(folder, "dataset", {"images": 8})
     assert json.loads((folder / "manifest.json").read_text())["config"] == {"images": 8}
 
 
-def test_atomic_temporary_names_carry_the_writers_pid(tmp_path) -> None:
-    from bench.common.atomic import atomic_path, clean_stale
+def test_atomic_temporary_names_carry_the_run_id_and_the_writers_pid(tmp_path) -> None:
+    from bench.common.atomic import atomic_path, clean_stale, run_id
 
     with atomic_path(tmp_path / "a.parquet") as tmp:
-        assert tmp.name.startswith(f".a.parquet.{os.getpid()}.tmp-") and tmp.suffix == ".parquet"
+        assert tmp.name.startswith(f".a.parquet.{run_id()}-{os.getpid()}.tmp-")
+        assert tmp.suffix == ".parquet"
         tmp.write_bytes(b"x")
-        assert clean_stale(tmp_path) == []  # this process is alive: its file stays
+        assert clean_stale(tmp_path) == []  # this run's: its file stays
     assert (tmp_path / "a.parquet").read_bytes() == b"x"
 
 
@@ -248,8 +256,8 @@ def test_a_zombie_writers_temporary_file_is_stale(tmp_path) -> None:
         while stat.read_text().rsplit(")", 1)[1].split()[0] != "Z":  # exited, not reaped
             assert time.monotonic() < deadline
             time.sleep(0.01)
-        stale = tmp_path / f".a.parquet.{zombie.pid}.tmp-z.parquet"
-        busy = tmp_path / f".b.parquet.{running.pid}.tmp-r.parquet"
+        stale = tmp_path / f".a.parquet.{OTHER_RUN}-{zombie.pid}.tmp-z.parquet"
+        busy = tmp_path / f".b.parquet.{OTHER_RUN}-{running.pid}.tmp-r.parquet"
         stale.write_bytes(b"half")
         busy.write_bytes(b"half")
         assert clean_stale(tmp_path) == [stale] and busy.exists()

@@ -17,7 +17,8 @@ import cv2
 import numpy as np
 
 from bench.common.atomic import write_bytes, write_json
-from bench.common.manifest import RunClock, build_manifest, claim_out, hash_files, write_manifest
+from bench.common.manifest import RunClock, build_manifest, hash_files, write_manifest
+from bench.common.run_folder import claim_out
 from bench.dataset.config import DatasetConfig
 from bench.dataset.sample import sample_recorder, simulate_sample
 from bench.evaluate.speed import pick_sample

@@ -26,7 +26,8 @@ import cv2
 import pandas as pd
 
 from bench.common.atomic import write_json
-from bench.common.manifest import RunClock, build_manifest, claim_out, hash_files, write_manifest
+from bench.common.manifest import RunClock, build_manifest, hash_files, write_manifest
+from bench.common.run_folder import claim_out
 from bench.dataset.config import DatasetConfig
 from bench.evaluate.band import rows_band_values
 from bench.evaluate.leaders import leader_lines, leaders

@@ -29,8 +29,9 @@ import numpy as np
 
 from bench.benchmarks.cycles_scene import marker_parts
 from bench.common.atomic import write_bytes, write_json
-from bench.common.manifest import RunClock, build_manifest, claim_out, hash_files, write_manifest
+from bench.common.manifest import RunClock, build_manifest, hash_files, write_manifest
 from bench.common.marker_score import MarkerTruth, find_marker
+from bench.common.run_folder import claim_out
 from bench.study.config import StudyConfig, profile_from_option
 from renderers.marker_renderer import MarkerRenderer
 from renderers.sensor import LUMINANCE_RGB, quantize

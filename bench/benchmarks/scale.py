@@ -16,7 +16,8 @@ import time
 from pathlib import Path
 
 from bench.common.atomic import write_json
-from bench.common.manifest import RunClock, build_manifest, claim_out, hash_files, write_manifest
+from bench.common.manifest import RunClock, build_manifest, hash_files, write_manifest
+from bench.common.run_folder import claim_out
 from bench.dataset.config import SAMPLE_FILES, DatasetConfig
 from bench.dataset.generate import run_dataset
 from bench.study.config import StudyConfig

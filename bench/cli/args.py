@@ -11,10 +11,12 @@ import math
 import re
 import socket
 import time
+from collections.abc import Iterable
 from pathlib import Path
 
 from bench.common.atomic import check_writable
 from bench.common.executor import CONNECT_TIMEOUT_S, EXECUTORS
+from bench.common.run_folder import check_not_input, check_not_owned, check_out_path
 from scenes.validation import MAX_SEED, FieldError
 
 #: Where a command's run folder goes without ``--out``: not ``results/``, which holds the
@@ -87,32 +89,34 @@ def seed(text: str) -> int:
     return value
 
 
-def check_out_folder(path: Path | str, field: str = "out") -> Path:
-    """An output folder: not an existing file, writable (made later, not now); FieldError
-    naming ``field`` otherwise."""
+def check_out_folder(path: Path | str, field: str = "out", inputs: Iterable[Path] = ()) -> Path:
+    """An output folder that is the command's own to write (made later, not now): not an
+    existing file or special file, not a dangling symbolic link, writable, not inside another
+    run's files (:func:`~bench.common.run_folder.check_not_owned`) and none of ``inputs``;
+    FieldError naming ``field`` otherwise."""
     if not str(path).strip():
         raise FieldError(field, "must name a folder")
-    path = Path(path)
-    if path.exists() and not path.is_dir():
-        raise FieldError(field, f"{path}: is a file, not a folder")
-    try:
-        check_writable(path)
-    except ValueError as exc:
-        raise FieldError(field, str(exc)) from None
-    return path
+    return _checked(Path(path), field, inputs, folder=True)
 
 
-def check_out_file(path: Path | str, field: str = "out") -> Path:
-    """An output file: not an existing folder, its folder writable; FieldError otherwise."""
+def check_out_file(path: Path | str, field: str = "out", inputs: Iterable[Path] = ()) -> Path:
+    """An output file that is the command's own to write: not an existing folder or special
+    file, not a symbolic link out of its folder, its folder writable, not another run's file
+    and none of ``inputs``; FieldError naming ``field`` otherwise."""
     if not str(path).strip():
         raise FieldError(field, "must name a file")
     path = Path(path)
     if not path.name:
         raise FieldError(field, f"{str(path)!r}: must name a file")
-    if path.is_dir():
-        raise FieldError(field, f"{path}: is a folder, not a file")
+    return _checked(path, field, inputs, folder=False)
+
+
+def _checked(path: Path, field: str, inputs: Iterable[Path], folder: bool) -> Path:
     try:
-        check_writable(path.parent)
+        check_out_path(path, folder)
+        check_writable(path if folder else path.parent)
+        check_not_owned(path)
+        check_not_input(path, inputs, "--" + field.removeprefix("--"))
     except ValueError as exc:
         raise FieldError(field, str(exc)) from None
     return path

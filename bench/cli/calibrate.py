@@ -184,8 +184,10 @@ def cmd_camera_calibrate(args: argparse.Namespace) -> int:
     from scenes.profile import profile_path
 
     files = (profile_path(args.camera), observations_path(args.observations))
-    if out.resolve() in {p.resolve() for p in files}:
-        return _fail("--out", f"{out}: is one of the command's inputs; write elsewhere")
+    try:
+        check_out_file(out, inputs=files)
+    except FieldError as exc:
+        return _fail("--out", exc.detail)
     try:
         search_range(profile, check_param(profile, args.param), args.f_number)
     except CalibrationInputError as exc:

@@ -177,7 +177,7 @@ def cmd_camera_import(args: argparse.Namespace) -> int:
     if not name:
         return _fail(args, "--name", "must be a non-empty string")
     try:
-        check_out_file(out)
+        check_out_file(out, inputs=(Path(args.file),))
     except FieldError as exc:
         return _fail(args, "--out", exc.detail)
     try:

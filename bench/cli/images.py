@@ -105,7 +105,7 @@ def _camera(option: str, fmt: str | None):
 
 
 def cmd_detect_images(args: argparse.Namespace) -> int:
-    from bench.common.manifest import claim_out
+    from bench.common.run_folder import claim_out
     from bench.common.stills import StillImageError
     from bench.evaluate.images import (
         KIND,

@@ -92,6 +92,7 @@ def cmd_ladder(args: argparse.Namespace) -> int:
         run = open_ladder(config, out)
     except ValueError as exc:  # the folder is another command's, or another ladder's
         raise LadderConfigError("--out", str(exc)) from None
-    manifest = run_ladder(config, out, args.workers, variant=args.variant, run=run)
+    with run:  # the folder stays locked until the manifest is written
+        manifest = run_ladder(config, out, args.workers, variant=args.variant, run=run)
     print(f"ladder: {out} in {manifest['wall_s']['total_s']:.0f} s; see {out / 'table.md'}")
     return 0

@@ -60,7 +60,7 @@ def cmd_lens_measure(args: argparse.Namespace) -> int:
     from bench.cli.args import check_out_file
     from bench.common.atomic import write_json
     from bench.lens.measure import FootageError, measure_lens
-    from scenes.profile import ProfileError, load_profile
+    from scenes.profile import ProfileError, load_profile, profile_path
     from scenes.validation import FieldError
 
     def fail(message: str) -> int:
@@ -74,9 +74,10 @@ def cmd_lens_measure(args: argparse.Namespace) -> int:
         profile = load_profile(args.camera)
     except ProfileError as exc:
         return fail(f"--camera: {exc.option_detail}")
+    inputs = (args.footage, profile_path(args.camera))
     try:
-        check_out_file(args.out)
-        check_out_file(report_path, "report")
+        check_out_file(args.out, inputs=inputs)
+        check_out_file(report_path, "report", inputs)
     except FieldError as exc:
         return fail(f"--{exc.field}: {exc.detail}")
     args.kept = "nothing was written (the profile and report are written at the end)"

@@ -45,6 +45,7 @@ from bench.cli.loader import add_bench_loader_parser
 from bench.cli.render import add_bench_render_parser
 from bench.cli.scale import add_scale_options, cmd_bench_scale
 from bench.common.manifest import input_digests, whiskerbench_version
+from bench.common.run_folder import set_command_line
 from bench.study.config import (
     DEFAULT_ALPHAS_DEG,
     DEFAULT_PHIS_DEG,
@@ -425,6 +426,7 @@ def _main(argv: list[str] | None) -> int:
     parser = _parser()
     args = parser.parse_args(argv)
     command = command_name(args)
+    set_command_line(sys.argv[1:] if argv is None else argv)
     args.kept = "nothing was written"
     try:
         _check_variant(getattr(args, "variant", None))

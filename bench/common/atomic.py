@@ -1,8 +1,11 @@
 """Atomic file output: write to a temporary file beside the target, then rename over it.
 
 A crash or Ctrl-C leaves either the old file or the new one, never half of one; the temporary
-file is removed on failure. A SIGKILL cannot remove it, so its name says whose it is
-(``.<name>.<pid>.tmp-<random><suffix>``) and :func:`clean_stale` deletes those of dead processes.
+file is removed on failure. A SIGKILL cannot remove it, so its name says whose it is: the run's
+id (:func:`run_id`, shared by the run's worker processes) and the writer's pid
+(``.<name>.<run>-<pid>.tmp-<random><suffix>``). :func:`clean_stale` deletes, at the top level of
+one folder only, those of other runs whose writer is dead: a user's file that merely looks like
+one, or one in a folder the run does not write, is never touched.
 """
 
 from __future__ import annotations
@@ -11,6 +14,7 @@ import contextlib
 import json
 import os
 import re
+import secrets
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
@@ -24,7 +28,7 @@ def atomic_path(path: Path) -> Iterator[Path]:
     path.parent.mkdir(parents=True, exist_ok=True)
     # the target's suffix kept last: writers (video, images) pick the format from it
     fd, tmp = tempfile.mkstemp(
-        prefix=f".{path.name}.{os.getpid()}.tmp-", suffix=path.suffix, dir=path.parent
+        prefix=f".{path.name}.{run_id()}-{os.getpid()}.tmp-", suffix=path.suffix, dir=path.parent
     )
     os.close(fd)
     try:
@@ -36,19 +40,45 @@ def atomic_path(path: Path) -> Iterator[Path]:
             os.unlink(tmp)
 
 
-_TEMP_NAME = re.compile(r"^\..+\.(?P<pid>[0-9]+)\.tmp-[A-Za-z0-9_]+(\.[^.]+)?$")
+#: The environment variable that carries the run's id to the run's worker processes.
+RUN_ID_ENV = "WHISKERBENCH_RUN_ID"
+_RUN_ID = re.compile(r"[0-9a-f]{12}")
+_TEMP_NAME = re.compile(
+    r"^\..+\.(?P<run>[0-9a-f]{12})-(?P<pid>[0-9]+)\.tmp-[A-Za-z0-9_]+(\.[^.]+)?$"
+)
+
+
+def run_id() -> str:
+    """This run's id: the one :func:`new_run_id` set (inherited by worker processes), else a
+    new one for this process."""
+    current = os.environ.get(RUN_ID_ENV, "")
+    return current if _RUN_ID.fullmatch(current) else new_run_id()
+
+
+def new_run_id() -> str:
+    """Start a new run in this process: a fresh id, handed to the workers it starts after."""
+    os.environ[RUN_ID_ENV] = secrets.token_hex(6)
+    return os.environ[RUN_ID_ENV]
 
 
 def clean_stale(folder: Path) -> list[Path]:
-    """Delete the temporary files under ``folder`` (any depth) left by processes no longer alive.
+    """Delete the temporary files at the top level of ``folder`` (not below) left by dead
+    writers of other runs; return what was deleted.
 
-    A killed run leaves them behind; a live process's files (another run writing there now)
-    are kept. Returns what was deleted.
+    A killed run leaves them behind; this run's, and a live process's (a killed run's worker
+    that has not yet noticed), are kept.
     """
     removed = []
-    for path in sorted(Path(folder).rglob(".*.tmp-*")):
+    ours = run_id()
+    try:
+        entries = sorted(Path(folder).iterdir())
+    except (FileNotFoundError, NotADirectoryError):
+        return removed
+    for path in entries:
         match = _TEMP_NAME.match(path.name)
-        if match and path.is_file() and not _alive(int(match["pid"])):
+        if match is None or match["run"] == ours or _alive(int(match["pid"])):
+            continue
+        if path.is_file() and not path.is_symlink():
             with contextlib.suppress(FileNotFoundError):
                 path.unlink()
                 removed.append(path)

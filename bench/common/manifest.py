@@ -3,8 +3,8 @@
 A manifest says what made the folder (``kind``: the command), with which config, seed, package
 versions and Mitsuba variant, from which input files (path -> SHA-256), what it wrote, and when
 and for how long. Its ``kind`` is also the folder's claim: a command refuses a folder that holds
-another command's manifest (:func:`claim`), before any work and before writing anything, so two
-commands pointed at one folder never overwrite each other's results.
+another command's manifest (:func:`bench.common.run_folder.claim`), before any work and before
+writing anything, so two commands pointed at one folder never overwrite each other's results.
 """
 
 from __future__ import annotations
@@ -21,8 +21,7 @@ from importlib import metadata
 from pathlib import Path
 from typing import Any
 
-from bench.common.atomic import check_writable, clean_stale, write_json
-from scenes.validation import FieldError
+from bench.common.atomic import write_json
 
 SCHEMA = 1
 MANIFEST = "manifest.json"
@@ -104,34 +103,6 @@ def kind_of(record: Mapping) -> str:
     if "settings_sha256" in record and "files" in record:
         return "dataset"
     return "unknown"
-
-
-def claim(folder: Path, kind: str) -> dict | None:
-    """Check that ``kind`` may write into ``folder``; return the manifest already there, if any.
-
-    Raises ValueError (one line naming the folder and the kind found) when the folder is not
-    writable or holds another command's manifest. Writes nothing but deletes the temporary files
-    that a killed run left there.
-    """
-    folder = Path(folder)
-    check_writable(folder)
-    existing = read_manifest(folder)
-    if existing is not None and kind_of(existing) != kind:
-        raise ValueError(
-            f"{folder} holds the output of `{kind_of(existing)}` (its {MANIFEST}); "
-            f"`{kind}` does not write there: choose another folder"
-        )
-    if folder.is_dir():
-        clean_stale(folder)
-    return existing
-
-
-def claim_out(folder: Path, kind: str) -> dict | None:
-    """:func:`claim` for a command's ``--out``: a refusal is a FieldError on ``out``."""
-    try:
-        return claim(folder, kind)
-    except ValueError as exc:
-        raise FieldError("out", str(exc)) from None
 
 
 class RunClock:

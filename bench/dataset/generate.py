@@ -10,10 +10,11 @@ from pathlib import Path
 
 from bench.common.executor import TaskPool, effective_executor
 from bench.common.manifest import sha256
-from bench.common.resumable import finish_run, open_run
+from bench.common.resumable import ResumableRun, finish_run, open_run
+from bench.common.units import DAMAGED, DONE
 from bench.dataset.config import DatasetConfig, DatasetConfigError, SampleSpec
 from bench.dataset.format import FORMAT_VERSION
-from bench.dataset.sample import run_sample, sample_done
+from bench.dataset.sample import run_sample, sample_state
 from renderers.variant import init_worker
 
 
@@ -48,21 +49,76 @@ def run_dataset(
 ) -> dict:
     """Make (or finish) the dataset in ``out_dir``; return its manifest.
 
-    Samples whose ``sample.json`` lists files that verify are skipped; a folder holding another
-    command's output or samples made with other settings is refused (DatasetConfigError on
-    ``out``) before anything is written. ``inputs`` (path: SHA-256, e.g. the camera profile's
-    file) go into the manifest. The samples run on ``executor``
+    Samples whose ``sample.json`` is intact and lists files that verify are skipped; a damaged
+    one is made again (named in the manifest's ``units_redone``). The folder is locked for the
+    whole run; a locked folder, one holding another command's output, samples made with other
+    settings, or a damaged sample outside this run's grid (it cannot be made again here) is
+    refused (DatasetConfigError on ``out``) before anything is written. The manifest lists every
+    sample in the folder, those of earlier runs with other grids included: a partial rerun adds
+    to the dataset, never drops what it did not touch. ``inputs`` (path: SHA-256, e.g. the camera
+    profile's file) go into the manifest. The samples run on ``executor``
     (:class:`~bench.common.executor.TaskPool`), recorded in the manifest but not in the
     settings: any executor resumes the folder.
     """
     out_dir = Path(out_dir)
     settings = config.settings_hash()
     samples = config.samples()
+    ids = [s.sample_id for s in samples]
+    others: list[str] = []
+
+    def check(folder: Path) -> None:  # the samples outside the grid, before anything is written
+        others.extend(_other_samples(folder, set(ids), settings))
+
     try:
-        run = open_run(out_dir, "dataset", config.to_json(), settings, units="*/sample.json")
-        todo = [s for s in samples if not sample_done(out_dir / s.sample_id, settings)]
+        run = open_run(
+            out_dir, "dataset", config.to_json(), settings, units="*/sample.json",
+            written=("", *ids), check=check,
+        )  # fmt: skip
     except ValueError as exc:
         raise DatasetConfigError("out", str(exc)) from None
+    with run:  # the folder stays locked until the manifest is written
+        try:
+            states = {s.sample_id: sample_state(out_dir / s.sample_id, settings) for s in samples}
+        except ValueError as exc:  # a sample.json from before record hashes, other settings
+            raise DatasetConfigError("out", str(exc)) from None
+        run.redone += [i for i, state in states.items() if state == DAMAGED]
+        todo = [s for s in samples if states[s.sample_id] != DONE]
+        return _make(run, config, samples + others, todo, variant, workers, progress, inputs,
+                     executor, scheduler)  # fmt: skip
+
+
+def _other_samples(out_dir: Path, grid: set[str], settings: str) -> list[str]:
+    """The finished samples in ``out_dir`` outside this run's grid (kept in the manifest);
+    ValueError naming one that is damaged."""
+    others = (
+        sorted(p.parent.name for p in out_dir.glob("*/sample.json")) if out_dir.is_dir() else []
+    )
+    others = [i for i in others if i not in grid]
+    for sample_id in others:
+        if sample_state(out_dir / sample_id, settings) != DONE:
+            raise ValueError(
+                f"{out_dir / sample_id}: a damaged sample outside this run's grid; rerun with "
+                "a grid that includes it, or delete it"
+            )
+    return others
+
+
+def _make(
+    run: ResumableRun,
+    config: DatasetConfig,
+    listed: list,
+    todo: list[SampleSpec],
+    variant: str | None,
+    workers: int,
+    progress: bool,
+    inputs: dict[str, str] | None,
+    executor: str,
+    scheduler: str | None,
+) -> dict:
+    """Make the ``todo`` samples into the opened run's folder, then write the manifest of every
+    ``listed`` sample (specs of this grid, ids of earlier runs)."""
+    out_dir = run.folder
+    samples = [s for s in listed if isinstance(s, SampleSpec)]
     inline = effective_executor(executor, workers, scheduler) == "inline"
     threads = None if inline else max(1, (os.cpu_count() or 1) // max(1, workers))
     chosen = init_worker(variant)
@@ -73,7 +129,8 @@ def run_dataset(
         ran_on = pool.describe()
         new = list(pool.map(_run_task, tasks, desc="samples", unit="sample", progress=progress))
     wall_s = time.perf_counter() - start
-    records = [json.loads((out_dir / s.sample_id / "sample.json").read_text()) for s in samples]
+    ids = [s.sample_id if isinstance(s, SampleSpec) else s for s in listed]
+    records = [json.loads((out_dir / i / "sample.json").read_text()) for i in ids]
     frames_new = sum(r["frames"] for r in new)
     # seconds in each stage of the samples made in this run (summed over workers); other:
     # setting up the renderer, labels and the preview

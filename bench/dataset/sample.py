@@ -17,7 +17,6 @@ exact labels with the profile's lens; :mod:`bench.common.video` writes the video
 from __future__ import annotations
 
 import dataclasses
-import json
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -28,6 +27,7 @@ import pandas as pd
 
 from bench.common.atomic import atomic_path, write_json
 from bench.common.manifest import sha256
+from bench.common.units import unit_state, write_unit
 from bench.dataset.config import SAMPLE_FILES, DatasetConfig, SampleSpec
 from bench.dataset.labels import corners_of_frame, label_table
 from scenes.branch_reach import gap_of_branch
@@ -231,26 +231,12 @@ def run_sample(config: DatasetConfig, sample: SampleSpec, out_dir: Path) -> dict
         "settings_sha256": config.settings_hash(),
         "files": {name: sha256(folder / name) for name in SAMPLE_FILES},
     }
-    write_json(folder / "sample.json", record)
-    return record
+    return write_unit(folder / "sample.json", record)
 
 
-def sample_done(folder: Path, settings_sha256: str) -> bool:
-    """True when ``folder/sample.json`` exists and every file it lists verifies.
-
-    Raises ValueError when the sample was made with other settings (the folder holds another
-    dataset: refuse rather than mix).
-    """
-    record_path = folder / "sample.json"
-    if not record_path.exists():
-        return False
-    try:
-        record = json.loads(record_path.read_text())
-        files = record["files"]
-    except (ValueError, KeyError):
-        return False
-    if record.get("settings_sha256") != settings_sha256:
-        raise ValueError(
-            f"{folder} was made with other settings; choose another --out or delete it"
-        )
-    return all((folder / n).exists() and sha256(folder / n) == h for n, h in files.items())
+def sample_state(folder: Path, settings_sha256: str) -> str:
+    """Whether the sample in ``folder`` is done and intact: its ``sample.json`` (a unit record,
+    :func:`bench.common.units.unit_state`) is whole, names this folder, and every file it lists
+    verifies. UnitSettingsError (a ValueError) when the sample was made with other settings
+    (the folder holds another dataset: refuse rather than mix)."""
+    return unit_state(folder / "sample.json", settings_sha256, {"sample_id": folder.name})

@@ -19,11 +19,11 @@ from bench.common.atomic import atomic_path
 from bench.common.manifest import (
     RunClock,
     build_manifest,
-    claim,
     hash_files,
     sha256,
     write_manifest,
 )
+from bench.common.run_folder import claim, open_folder
 from bench.dataset.verify import VerifiedDataset
 from bench.evaluate.results_file import (
     MAX_ROWS,
@@ -145,18 +145,19 @@ def score_branches(
                 **branch_outcome(estimated, record["branch_gaps"]),
             }
         )
-    table = pd.DataFrame(rows).sort_values("sample_id").reset_index(drop=True)
-    table = table.reindex(columns=[*table, *(c for c in SCORED_COLUMNS if c not in table)])
-    with atomic_path(out_dir / "samples.csv") as tmp:
-        table.to_csv(tmp, index=False)
-    for (protocol, lighting), part in table.groupby(["protocol", "lighting"]):
-        title = f"{name}: {protocol}, {lighting} (branches only, accuracy only)"
-        plot_grid(part, out_dir / f"grid-{protocol}-{lighting}.png", title)
-    written = [out_dir / "samples.csv", *out_dir.glob("grid-*.png")]
-    settings = {"branches": str(path), "name": name, "dataset": str(verified.folder)}
-    inputs = {**verified.inputs(), str(path): sha256(path)}
-    record = build_manifest(
-        "score", clock, settings, inputs=inputs, outputs=hash_files(written, out_dir)
-    )
-    write_manifest(out_dir, record)
+    with open_folder(out_dir, "score"):  # locked while it is written
+        table = pd.DataFrame(rows).sort_values("sample_id").reset_index(drop=True)
+        table = table.reindex(columns=[*table, *(c for c in SCORED_COLUMNS if c not in table)])
+        with atomic_path(out_dir / "samples.csv") as tmp:
+            table.to_csv(tmp, index=False)
+        for (protocol, lighting), part in table.groupby(["protocol", "lighting"]):
+            title = f"{name}: {protocol}, {lighting} (branches only, accuracy only)"
+            plot_grid(part, out_dir / f"grid-{protocol}-{lighting}.png", title)
+        written = [out_dir / "samples.csv", *out_dir.glob("grid-*.png")]
+        settings = {"branches": str(path), "name": name, "dataset": str(verified.folder)}
+        inputs = {**verified.inputs(), str(path): sha256(path)}
+        record = build_manifest(
+            "score", clock, settings, inputs=inputs, outputs=hash_files(written, out_dir)
+        )
+        write_manifest(out_dir, record)
     return table

@@ -43,10 +43,10 @@ from bench.common.executor import TaskPool, effective_executor  # noqa: E402
 from bench.common.manifest import (  # noqa: E402
     RunClock,
     build_manifest,
-    claim,
     hash_files,
     write_manifest,
 )
+from bench.common.run_folder import claim, open_folder  # noqa: E402
 from bench.evaluate.band import band_section  # noqa: E402
 from bench.evaluate.leaders import is_peer, leader_lines, leaders  # noqa: E402
 from bench.evaluate.speed import (  # noqa: E402
@@ -201,98 +201,99 @@ def run_compare(
     for pipeline in pipelines:
         claim(dataset / "scores" / pipeline.folder_name, "score")
     verified = verify_dataset(dataset)  # every file hashed once, before the speed frames
-    chosen = init_worker(variant)
-    t_start = time.perf_counter()
-    # one pool scores every pipeline: a Dask cluster or worker processes start once
-    pool = TaskPool(workers, executor=executor, scheduler=scheduler)
-    with pool, one_opencv_thread():
-        images = full_frames(SPEED_SAMPLE, speed_frames)[0][1.0]
-        rows, tables = [], {}
-        for pipeline in pipelines:
-            fps, _ = time_pipeline(images, SPEED_SAMPLE, pipeline, speed_seconds)
-            scores = dataset / "scores" / pipeline.folder_name
-            table = score_dataset(dataset, pipeline, scores, verified, pool=pool)
-            tables[pipeline.name] = table
-            rows.append({**summarize(pipeline.name, table), "fps": fps})
-        del images
-    summary = pd.DataFrame(rows)
-    pool_options = {"workers": workers, "executor": executor, "scheduler": scheduler}
-    t_sweeps = time.perf_counter()
-    sweeps = run_sweeps(pipelines, sweep, variant, **pool_options)
-    t_band = time.perf_counter()
-    band_tables = {  # the boundary axes again, the base point's PSF at each band end
-        end.base_psf_scale: run_sweeps(pipelines, end, variant, **pool_options)
-        for end in sweep.band_end_sweeps()
-    }
-    band_s = time.perf_counter() - t_band
-    edges = boundaries(sweeps)
-    band_edges = band_end_boundaries(band_tables)
-    band = sweep_band_values(sweeps, band_edges, tuple(band_tables)) if band_tables else None
-    leads = leaders(summary, edges, band)
+    with open_folder(out_dir, "compare", ("", "grids")):  # locked until the manifest is written
+        chosen = init_worker(variant)
+        t_start = time.perf_counter()
+        # one pool scores every pipeline: a Dask cluster or worker processes start once
+        pool = TaskPool(workers, executor=executor, scheduler=scheduler)
+        with pool, one_opencv_thread():
+            images = full_frames(SPEED_SAMPLE, speed_frames)[0][1.0]
+            rows, tables = [], {}
+            for pipeline in pipelines:
+                fps, _ = time_pipeline(images, SPEED_SAMPLE, pipeline, speed_seconds)
+                scores = dataset / "scores" / pipeline.folder_name
+                table = score_dataset(dataset, pipeline, scores, verified, pool=pool)
+                tables[pipeline.name] = table
+                rows.append({**summarize(pipeline.name, table), "fps": fps})
+            del images
+        summary = pd.DataFrame(rows)
+        pool_options = {"workers": workers, "executor": executor, "scheduler": scheduler}
+        t_sweeps = time.perf_counter()
+        sweeps = run_sweeps(pipelines, sweep, variant, **pool_options)
+        t_band = time.perf_counter()
+        band_tables = {  # the boundary axes again, the base point's PSF at each band end
+            end.base_psf_scale: run_sweeps(pipelines, end, variant, **pool_options)
+            for end in sweep.band_end_sweeps()
+        }
+        band_s = time.perf_counter() - t_band
+        edges = boundaries(sweeps)
+        band_edges = band_end_boundaries(band_tables)
+        band = sweep_band_values(sweeps, band_edges, tuple(band_tables)) if band_tables else None
+        leads = leaders(summary, edges, band)
 
-    out_dir.mkdir(parents=True, exist_ok=True)
-    written = write_sweeps(out_dir, sweeps, sweep, pipelines)
-    frames = [("summary", summary), ("boundaries", edges), ("leaders", leads)]
-    if band_tables:
-        frames += [
-            ("sweeps_band_ends", pd.concat(band_tables.values(), ignore_index=True)),
-            ("boundaries_band_ends", band_edges),
-        ]
-    for name, frame in frames:
-        with atomic_path(out_dir / f"{name}.csv") as tmp:
-            frame.to_csv(tmp, index=False)
-        written.append(out_dir / f"{name}.csv")
-    plot_pareto(summary, out_dir / "pareto.png")
-    grids = _copy_grids(dataset, pipelines, out_dir)
-    meta = {
-        "dataset": str(dataset),
-        "samples": int(summary["samples"].iloc[0]),
-        "variant": chosen,
-        "cpu_count": os.cpu_count(),
-        "machine": platform.processor() or platform.machine(),
-        "opencv": cv2.__version__,
-        "wall_s": time.perf_counter() - t_start,
-        "speed_frames": speed_frames,
-        "dataset_psf_scale": dataset_psf_scale(dataset),
-        "band": None
-        if not band_tables
-        else {
-            "range": sweep.band_ends,
-            "ends": tuple(band_tables),
-            "sweeps_s": t_band - t_sweeps,
-            "band_sweeps_s": band_s,
-            "seeds": sweep.seeds,
-            "band_seeds": sweep.band_seeds,
-            "images": sweep.images,
-            "base": f"alpha {sweep.base_alpha_deg:g} deg, phi {sweep.base_phi_deg:g} deg, "
-            f"{sweep.base_lighting}",
-        },
-    }
-    report = render_report(summary, tables, edges, leads, grids, meta)
-    write_bytes(out_dir / "report.md", report.encode())
-    written += [out_dir / "pareto.png", out_dir / "report.md"]
-    written += [out_dir / "grids" / n for names in grids.values() for n in names]
-    config = {
-        "dataset": str(dataset),
-        "pipelines": [p.to_json() for p in pipelines],
-        "sweep": sweep.to_json(),  # also in sweep_config.json, beside the sweep table
-        "speed_frames": speed_frames,
-        "speed_seconds": speed_seconds,
-    }
-    record = build_manifest(
-        "compare",
-        clock,
-        config,
-        variant=chosen,
-        inputs=verified.inputs(),
-        outputs=hash_files(written, out_dir),
-        cpu_count=meta["cpu_count"],
-        machine=meta["machine"],
-        executor=effective_executor(executor, workers, scheduler),
-        workers=workers,
-        scheduler=scheduler,
-    )
-    write_manifest(out_dir, record)
+        out_dir.mkdir(parents=True, exist_ok=True)
+        written = write_sweeps(out_dir, sweeps, sweep, pipelines)
+        frames = [("summary", summary), ("boundaries", edges), ("leaders", leads)]
+        if band_tables:
+            frames += [
+                ("sweeps_band_ends", pd.concat(band_tables.values(), ignore_index=True)),
+                ("boundaries_band_ends", band_edges),
+            ]
+        for name, frame in frames:
+            with atomic_path(out_dir / f"{name}.csv") as tmp:
+                frame.to_csv(tmp, index=False)
+            written.append(out_dir / f"{name}.csv")
+        plot_pareto(summary, out_dir / "pareto.png")
+        grids = _copy_grids(dataset, pipelines, out_dir)
+        meta = {
+            "dataset": str(dataset),
+            "samples": int(summary["samples"].iloc[0]),
+            "variant": chosen,
+            "cpu_count": os.cpu_count(),
+            "machine": platform.processor() or platform.machine(),
+            "opencv": cv2.__version__,
+            "wall_s": time.perf_counter() - t_start,
+            "speed_frames": speed_frames,
+            "dataset_psf_scale": dataset_psf_scale(dataset),
+            "band": None
+            if not band_tables
+            else {
+                "range": sweep.band_ends,
+                "ends": tuple(band_tables),
+                "sweeps_s": t_band - t_sweeps,
+                "band_sweeps_s": band_s,
+                "seeds": sweep.seeds,
+                "band_seeds": sweep.band_seeds,
+                "images": sweep.images,
+                "base": f"alpha {sweep.base_alpha_deg:g} deg, phi {sweep.base_phi_deg:g} deg, "
+                f"{sweep.base_lighting}",
+            },
+        }
+        report = render_report(summary, tables, edges, leads, grids, meta)
+        write_bytes(out_dir / "report.md", report.encode())
+        written += [out_dir / "pareto.png", out_dir / "report.md"]
+        written += [out_dir / "grids" / n for names in grids.values() for n in names]
+        config = {
+            "dataset": str(dataset),
+            "pipelines": [p.to_json() for p in pipelines],
+            "sweep": sweep.to_json(),  # also in sweep_config.json, beside the sweep table
+            "speed_frames": speed_frames,
+            "speed_seconds": speed_seconds,
+        }
+        record = build_manifest(
+            "compare",
+            clock,
+            config,
+            variant=chosen,
+            inputs=verified.inputs(),
+            outputs=hash_files(written, out_dir),
+            cpu_count=meta["cpu_count"],
+            machine=meta["machine"],
+            executor=effective_executor(executor, workers, scheduler),
+            workers=workers,
+            scheduler=scheduler,
+        )
+        write_manifest(out_dir, record)
     return summary
 
 

@@ -26,11 +26,11 @@ from bench.common.atomic import atomic_path, write_json  # noqa: E402
 from bench.common.manifest import (  # noqa: E402
     RunClock,
     build_manifest,
-    claim,
     hash_files,
     sha256,
     write_manifest,
 )
+from bench.common.run_folder import claim, open_folder  # noqa: E402
 from pipeline.branches import BranchEstimate, estimate_branches, online_threshold  # noqa: E402
 from pipeline.presets import PipelineConfig  # noqa: E402
 from pipeline.track import MarkerSet, pose_arrays, track  # noqa: E402
@@ -136,33 +136,34 @@ def write_estimate(
     est, source = estimate(tracked, n_frames, array.n_whiskers, config, threshold_mm)
     f, w = tracked["frame"].to_numpy(), tracked["whisker"].to_numpy()
     estimated = {"deflection_mm": est.deflection[f, w], "contact": est.contact[f, w]}
-    table = pd.DataFrame(ordered(DETECTIONS, {**tracked.to_dict("series"), **estimated}))
-    with atomic_path(out_dir / "detections.parquet") as tmp:
-        table.to_parquet(tmp, index=False)
-    record = {
-        "pipeline": config.to_json(),
-        "frames": n_frames,
-        "threshold_mm": est.threshold_mm,
-        "threshold_source": source,
-        "branches": gap_positions(est.gaps, array),
-        "peaks": est.peaks,
-        "unseen_markers": est.unseen_markers,
-        **facts,
-        "true_gaps": truth,
-    }
-    write_json(out_dir / "branches.json", record)
-    plot_estimate(est, out_dir / "branches.png", truth, title)
-    config_record = {
-        "pipeline": config.to_json(),
-        "camera": dataclasses.asdict(camera),
-        "array": array.to_json(),
-        "threshold_mm": threshold_mm,
-    }
-    written = [out_dir / n for n in ("detections.parquet", "branches.json", "branches.png")]
-    manifest = build_manifest(
-        "detect", clock, config_record, inputs=inputs, outputs=hash_files(written, out_dir)
-    )
-    write_manifest(out_dir, manifest)
+    with open_folder(out_dir, "detect"):  # claimed again, and locked while it is written
+        table = pd.DataFrame(ordered(DETECTIONS, {**tracked.to_dict("series"), **estimated}))
+        with atomic_path(out_dir / "detections.parquet") as tmp:
+            table.to_parquet(tmp, index=False)
+        record = {
+            "pipeline": config.to_json(),
+            "frames": n_frames,
+            "threshold_mm": est.threshold_mm,
+            "threshold_source": source,
+            "branches": gap_positions(est.gaps, array),
+            "peaks": est.peaks,
+            "unseen_markers": est.unseen_markers,
+            **facts,
+            "true_gaps": truth,
+        }
+        write_json(out_dir / "branches.json", record)
+        plot_estimate(est, out_dir / "branches.png", truth, title)
+        config_record = {
+            "pipeline": config.to_json(),
+            "camera": dataclasses.asdict(camera),
+            "array": array.to_json(),
+            "threshold_mm": threshold_mm,
+        }
+        written = [out_dir / n for n in ("detections.parquet", "branches.json", "branches.png")]
+        manifest = build_manifest(
+            "detect", clock, config_record, inputs=inputs, outputs=hash_files(written, out_dir)
+        )
+        write_manifest(out_dir, manifest)
     return record
 
 

@@ -15,7 +15,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from bench.common.manifest import RunClock, claim
+from bench.common.manifest import RunClock
+from bench.common.run_folder import claim
 from bench.evaluate.detect import write_estimate
 from bench.evaluate.results_file import CORNERS, POSE
 from pipeline.deflection import NoBaselineError

@@ -35,11 +35,12 @@ from bench.common.executor import TaskPool  # noqa: E402
 from bench.common.manifest import (  # noqa: E402
     RunClock,
     build_manifest,
-    claim,
     hash_files,
+    json_sha256,
     read_manifest,
     write_manifest,
 )
+from bench.common.run_folder import claim, open_folder  # noqa: E402
 from bench.dataset.verify import VerifiedDataset, verify_dataset  # noqa: E402
 from bench.evaluate.results_file import ExternalDetections, frames_per_s  # noqa: E402
 from pipeline.presets import PipelineConfig  # noqa: E402
@@ -316,82 +317,87 @@ def score_dataset(
 
     The detector is set to the dataset's marker family (:func:`for_family`: a backend that
     cannot detect it is refused). Before any work ``out_dir`` is claimed (ValueError if another
-    command's) and every file of every sample is checked against its recorded SHA-256
-    (DatasetIntegrityError naming the file), unless ``verified`` says it was, in this command;
-    ``manifest.json`` is written last.
-    With ``external`` (another tool's detections, validated) no detector runs: ``config``'s
-    stages after detection run on them (no family check), frames/s is ``fps`` or the file's
-    times, else NaN (accuracy only; the grids say so).
-    The samples are tasks on ``executor`` (:class:`~bench.common.executor.TaskPool`), or on
-    ``pool`` when the caller keeps one for several pipelines (``compare``): the no-branch twins
-    first, then the others with their twins' thresholds.
+    command's or another run's: it stays locked for the run) and every sample's file checked
+    against its SHA-256 (DatasetIntegrityError naming the file), unless ``verified`` says it
+    was, in this command; ``manifest.json`` is written last. With ``external`` (another
+    tool's detections, validated) no detector runs: ``config``'s stages after detection run on
+    them (no family check), frames/s is ``fps`` or the file's times, else NaN (accuracy only;
+    the grids say so). The samples are tasks on ``executor``
+    (:class:`~bench.common.executor.TaskPool`), or on ``pool`` when the caller keeps one for
+    several pipelines (``compare``): the no-branch twins first, then the others with their
+    twins' thresholds.
     """
 
     dataset, out_dir = Path(dataset), Path(out_dir)
     if external is None:
         config = for_family(config, dataset_family(dataset))  # refused here, before any work
     clock = RunClock()
-    claim(out_dir, "score")
+    claim(out_dir, "score")  # reads only: refused before the dataset is hashed
     verified = verified or verify_dataset(dataset)
     records = verified.records
-    thresholds: dict[str, float] = {}
-    rows = []
-    # the caller's pool stays open for its next use; without one, this call's own
-    own = pool is None
-    runner = TaskPool(workers, executor=executor, scheduler=scheduler) if own else nullcontext(pool)
-    with runner as pool:
-        ran_on = pool.describe()
-        for twins in (True, False):  # a sample's threshold is its twin's: twins first
-            tasks = []
-            for sample_id, record in sorted(records.items()):
-                if (record["branches_mm"] == []) != twins:
-                    continue
-                twin, source = _none_twin(record, records)
-                fixed = config.threshold == "fixed" and twin is not None
-                tasks.append(
-                    _SampleTask(
-                        dataset / sample_id,
-                        record,
-                        config,
-                        out_dir,
-                        thresholds.get(twin) if fixed else None,
-                        source,
-                        verified.digests[f"{sample_id}/video.mp4"],
-                        *_external_of(external, sample_id, fps),
-                    )
-                )
-            desc = f"score {config.name}" + ("" if twins else " (branches)")
-            for row, threshold in pool.map(_score_sample, tasks, desc=desc, unit="sample"):
-                rows.append(row)
-                if threshold is not None:
-                    thresholds[row["sample_id"]] = threshold
-    table = pd.DataFrame(rows).sort_values("sample_id").reset_index(drop=True)
-    table = table.reindex(columns=[*table, *(c for c in SCORED_COLUMNS if c not in table)])
-    with atomic_path(out_dir / "samples.csv") as tmp:
-        table.to_csv(tmp, index=False)
-    untimed = external is not None and table["frames_per_s"].isna().all()
-    for (protocol, lighting), part in table.groupby(["protocol", "lighting"]):
-        plot_grid(
-            part,
-            out_dir / f"grid-{protocol}-{lighting}.png",
-            f"{config.name}: {protocol}, {lighting}" + (" (accuracy only)" if untimed else ""),
-        )
-    written = [out_dir / "samples.csv", *out_dir.glob("grid-*.png")]
     settings = {"pipeline": config.to_json(), "dataset": str(dataset)}
-    inputs = verified.inputs()
     if external is not None:
-        settings["results"] = {"source": str(external.source), "fps": fps, "timed": not untimed}
-        inputs.update(external.files)
-    record = build_manifest(
-        "score",
-        clock,
-        settings,
-        inputs=inputs,
-        outputs=hash_files(written, out_dir),
-        **ran_on,
-    )
-    write_manifest(out_dir, record)
-    return table
+        settings["results"] = {"source": str(external.source), "fps": fps}
+    settings_sha256 = json_sha256(settings)
+    with open_folder(out_dir, "score", ("", *records), settings_sha256):
+        thresholds: dict[str, float] = {}
+        rows = []
+        # the caller's pool stays open for its next use; without one, this call's own
+        own = TaskPool(workers, executor=executor, scheduler=scheduler) if pool is None else None
+        with nullcontext(pool) if own is None else own as pool:
+            ran_on = pool.describe()
+            for twins in (True, False):  # a sample's threshold is its twin's: twins first
+                tasks = []
+                for sample_id, record in sorted(records.items()):
+                    if (record["branches_mm"] == []) != twins:
+                        continue
+                    twin, source = _none_twin(record, records)
+                    fixed = config.threshold == "fixed" and twin is not None
+                    tasks.append(
+                        _SampleTask(
+                            dataset / sample_id,
+                            record,
+                            config,
+                            out_dir,
+                            thresholds.get(twin) if fixed else None,
+                            source,
+                            verified.digests[f"{sample_id}/video.mp4"],
+                            *_external_of(external, sample_id, fps),
+                        )
+                    )
+                desc = f"score {config.name}" + ("" if twins else " (branches)")
+                for row, threshold in pool.map(_score_sample, tasks, desc=desc, unit="sample"):
+                    rows.append(row)
+                    if threshold is not None:
+                        thresholds[row["sample_id"]] = threshold
+        table = pd.DataFrame(rows).sort_values("sample_id").reset_index(drop=True)
+        table = table.reindex(columns=[*table, *(c for c in SCORED_COLUMNS if c not in table)])
+        with atomic_path(out_dir / "samples.csv") as tmp:
+            table.to_csv(tmp, index=False)
+        untimed = external is not None and table["frames_per_s"].isna().all()
+        for (protocol, lighting), part in table.groupby(["protocol", "lighting"]):
+            plot_grid(
+                part,
+                out_dir / f"grid-{protocol}-{lighting}.png",
+                f"{config.name}: {protocol}, {lighting}" + (" (accuracy only)" if untimed else ""),
+            )
+        written = [out_dir / "samples.csv", *out_dir.glob("grid-*.png")]
+        inputs = verified.inputs()
+        if external is not None:
+            settings["results"]["timed"] = not untimed
+            inputs.update(external.files)
+        record = build_manifest(
+            "score",
+            clock,
+            settings,
+            inputs=inputs,
+            outputs=hash_files(written, out_dir),
+            **ran_on,
+            units=sorted(records),  # a sample's folder of detections each
+            settings_sha256=settings_sha256,
+        )
+        write_manifest(out_dir, record)
+        return table
 
 
 def _external_of(

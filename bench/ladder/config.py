@@ -9,6 +9,7 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 
+from bench.common.manifest import json_sha256
 from bench.study.config import IMAGE_STEPS, Cell
 from scenes.profile import shipped_profiles
 from scenes.validation import MAX_SEED, FieldError
@@ -121,3 +122,7 @@ class LadderConfig:
         out = dataclasses.asdict(self)
         out["cells"] = [dataclasses.asdict(c) for c in self.cells]
         return out
+
+    def settings_hash(self) -> str:
+        """The hash of the config's JSON: the folder's, and each rung's record's."""
+        return json_sha256(self.to_json())

@@ -13,6 +13,7 @@ from bench.common.atomic import atomic_path, write_bytes, write_json
 from bench.common.executor import TaskPool
 from bench.common.manifest import hash_files
 from bench.common.resumable import ResumableRun, finish_run, open_run
+from bench.common.units import payload
 from bench.ladder import report, study_part, video_part
 from bench.ladder.config import LadderConfig
 from bench.ladder.rungs import Rung, study_rungs, video_rungs
@@ -41,15 +42,23 @@ def _rows(config: LadderConfig, rungs: list[Rung], out_dir: Path) -> pd.DataFram
             for cell in study_part.study_outcomes(config, rung, out_dir):
                 rows.append({**base, **cell, "n_images": cell["n"]})
         else:
-            result = json.loads(video_part.result_path(out_dir, rung).read_text())
+            result = payload(json.loads(video_part.result_path(out_dir, rung).read_text()))
             rows.append({**base, "cell": "clip", **result, "n_images": result["frames"]})
     return pd.DataFrame(rows)
 
 
+#: The ladder's unit records (a rung's cell's timing, a video rung's result) and the folders
+#: it writes.
+UNITS = ("study/*/timing/*.json", "video/*/result.json")
+WRITTEN = ("", "study", "study/*", "study/*/cells", "study/*/timing", "video", "video/*")
+
+
 def open_ladder(config: LadderConfig, out_dir: Path) -> ResumableRun:
-    """Claim ``out_dir`` for this ladder: a folder holding another command's output or another
-    ladder is refused (ValueError naming it) before anything is written."""
-    return open_run(Path(out_dir), "ladder", config.to_json(), units="*/*/*")
+    """Claim and lock ``out_dir`` for this ladder (until the returned run is closed): a folder
+    that is locked, holds another command's output or another ladder (by its manifest, lock
+    file or any rung's record) is refused (ValueError naming it) before anything is written."""
+    settings = config.settings_hash()
+    return open_run(Path(out_dir), "ladder", config.to_json(), settings, UNITS, WRITTEN)
 
 
 def run_ladder(
@@ -60,10 +69,13 @@ def run_ladder(
     variant: str | None = None,
     run: ResumableRun | None = None,
 ) -> dict:
-    """Run (or resume) the ladder into ``out_dir``; return its manifest. Finished rungs are
-    skipped; ``run``: the folder as :func:`open_ladder` claimed it (claimed here without)."""
+    """Run (or resume) the ladder into ``out_dir``; return its manifest. Finished rungs whose
+    records verify are skipped; ``run``: the folder as :func:`open_ladder` claimed it (the
+    caller closes it), else claimed here and released at the end."""
+    if run is None:
+        with open_ladder(config, out_dir) as run:
+            return run_ladder(config, out_dir, workers, progress, variant, run)
     out_dir = Path(out_dir)
-    run = run or open_ladder(config, out_dir)
     rungs = plan(config)
     t0 = time.perf_counter()
     study = [r for r in rungs if r.part == "study"]

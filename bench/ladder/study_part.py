@@ -4,7 +4,8 @@ A task is one cell under one render (spp, integrator, region): it renders once
 (:func:`bench.study.cells.render_cell`), then, for every rung sharing that render (the
 reference and its camera-stage rungs), draws and scores the cell's images with that rung's
 profile (:func:`bench.study.cells.run_cell`) into ``study/<rung>/cells/``. A rung's cell is
-finished when its ``timing/<cell>.json`` (written last) exists, so a rerun skips it.
+finished when its ``timing/<cell>.json`` (written last: a unit record of the ladder's settings
+and the cell file's hash, :mod:`bench.common.units`) verifies, so a rerun skips it.
 """
 
 from __future__ import annotations
@@ -17,7 +18,8 @@ from pathlib import Path
 
 import pandas as pd
 
-from bench.common.atomic import write_json
+from bench.common.manifest import sha256
+from bench.common.units import DONE, unit_state, write_unit
 from bench.evaluate.score import finite_median
 from bench.ladder.config import LadderConfig
 from bench.ladder.rungs import Rung, render_groups, stage_off
@@ -53,6 +55,7 @@ class StudyTask:
     cell: Cell
     rungs: tuple[Rung, ...]
     out_dir: Path
+    settings: str  # the ladder's settings hash, in each rung's record
 
 
 def _renderer(study: StudyConfig, options: dict, cache: dict) -> MarkerRenderer:
@@ -99,21 +102,31 @@ def run_study_task(task: StudyTask, cache: dict) -> StudyTask:
         timings = run_cell(rung_study, task.cell, renderer, folder, (1.0,), render=render)
         images = int(sum(timings["images"].values()))
         scored_s = time.perf_counter() - t0
-        write_json(
+        name = task.cell.output_name(1.0)
+        cell_file = folder / "cells" / f"{name}.parquet"
+        record = {"render_s": render.render_s, "score_s": scored_s, "images": images}
+        record |= {"unit": f"{rung.key}/{task.cell.key}", "settings_sha256": task.settings}
+        write_unit(
             timing_path(task.out_dir, rung, task.cell),
-            {"render_s": render.render_s, "score_s": scored_s, "images": images},
+            {**record, "files": {f"../cells/{cell_file.name}": sha256(cell_file)}},
         )
     return task
 
 
+def rung_state(out_dir: Path, rung: Rung, cell: Cell, settings: str) -> str:
+    """Whether a rung's cell is done and intact (:func:`bench.common.units.unit_state`)."""
+    path = timing_path(out_dir, rung, cell)
+    return unit_state(path, settings, {"unit": f"{rung.key}/{cell.key}"})
+
+
 def study_tasks(config: LadderConfig, rungs: list[Rung], out_dir: Path) -> list[StudyTask]:
     """Tasks for the unfinished (rung, cell) pairs, grouped by render, costly renders first."""
-    tasks = []
+    tasks, settings = [], config.settings_hash()
     for group in render_groups(rungs):
         for cell in config.cells:
-            todo = tuple(r for r in group if not timing_path(out_dir, r, cell).exists())
+            todo = tuple(r for r in group if rung_state(out_dir, r, cell, settings) != DONE)
             if todo:
-                tasks.append(StudyTask(config, cell, todo, out_dir))
+                tasks.append(StudyTask(config, cell, todo, out_dir, settings))
     return sorted(
         tasks, key=lambda t: (-t.rungs[0].options["full_frame"], -t.rungs[0].options["spp"])
     )

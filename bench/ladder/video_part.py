@@ -6,7 +6,8 @@ mechanics once per worker (rendering does not change them), renders every ``fram
 frame once (:meth:`FrameRecorder.radiance`) and records that radiance through each rung's
 profile (:class:`Replay`) into ``video/<rung>/<sample>.mp4``. Each rung's pipeline then runs on
 the twin (its fixed threshold, as ``score`` sets it) and on the branch sample, scored by
-:mod:`bench.evaluate.score`; ``result.json`` is written last, so a rerun skips the rung.
+:mod:`bench.evaluate.score`; ``result.json`` is written last (a unit record of the ladder's
+settings, :mod:`bench.common.units`), so a rerun skips the rung if it verifies.
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from bench.common.atomic import write_json
+from bench.common.units import DONE, unit_state, write_unit
 from bench.dataset.config import DatasetConfig, SampleSpec
 from bench.dataset.sample import SimulatedSample, sample_recorder, simulate_sample
 from bench.ladder.config import LadderConfig
@@ -124,6 +125,7 @@ class VideoTask:
     config: LadderConfig
     rungs: tuple[Rung, ...]
     out_dir: Path
+    settings: str  # the ladder's settings hash, in each rung's record
 
 
 def result_path(out_dir: Path, rung: Rung) -> Path:
@@ -132,11 +134,15 @@ def result_path(out_dir: Path, rung: Rung) -> Path:
 
 def video_tasks(config: LadderConfig, rungs: list[Rung], out_dir: Path) -> list[VideoTask]:
     """One task per render setting with an unfinished rung."""
-    tasks = []
+    tasks, settings = [], config.settings_hash()
     for group in render_groups(rungs):
-        todo = tuple(r for r in group if not result_path(out_dir, r).exists())
+        todo = tuple(
+            r
+            for r in group
+            if unit_state(result_path(out_dir, r), settings, {"unit": r.key}) != DONE
+        )
         if todo:
-            tasks.append(VideoTask(config, todo, out_dir))
+            tasks.append(VideoTask(config, todo, out_dir, settings))
     return tasks
 
 
@@ -243,9 +249,12 @@ def run_video_task(task: VideoTask, cache: dict) -> VideoTask:
     rendered = {s: _render(task, dataset, s, cache) for s in dataset.samples()}
     for rung in task.rungs:
         record = _score(task, rung, dataset, rendered)
-        write_json(
+        write_unit(
             result_path(task.out_dir, rung),
             {
+                "unit": rung.key,
+                "settings_sha256": task.settings,
+                "files": {},  # the record is the result: its own hash pins it
                 **record,
                 "samples": [s.sample_id for s in rendered],
                 "frames": sum(r["frames"] for r in rendered.values()),

@@ -15,9 +15,10 @@ the project's ``lines``; both are posed and scored (at the nominal PSF scale, on
 only; :mod:`bench.common.marker_score`, shared with the sweeps). An image on which a peer's
 worker crashes (:class:`~pipeline.backends.BackendCrashError`) is a row with ``backend_failed``
 set: neither detected nor missed, it counts towards the cap but not towards the detection rate.
-A cell's rows are written atomically to ``cells/<key>_x<scale>.parquet``, so an interrupted
-study resumes where it stopped. Every cell a process runs is handed the same
-:class:`~renderers.marker_renderer.MarkerRenderer` (:func:`init_study_worker`).
+A cell's rows are written atomically to ``cells/<key>_x<scale>.parquet``, with its record
+(``.json`` beside it: settings and content hash, :mod:`bench.common.units`), so an interrupted
+study resumes where it stopped and a damaged cell is computed again. Every cell a process runs
+is handed the same :class:`~renderers.marker_renderer.MarkerRenderer` (:func:`init_study_worker`).
 """
 
 from __future__ import annotations
@@ -33,7 +34,9 @@ import numpy as np
 import pandas as pd
 
 from bench.common.atomic import atomic_path, write_bytes
+from bench.common.manifest import sha256
 from bench.common.marker_score import MarkerTruth, find_marker, score_corners
+from bench.common.units import unit_state, write_unit
 from bench.study.config import IMAGE_STEPS, POSE_IMAGES, Cell, StudyConfig
 from bench.study.report import METRICS, excludes_threshold, refinements_of, wilson_interval
 from pipeline.backends import BackendCrashError
@@ -238,13 +241,33 @@ def run_cell(
         for name, value in reversed(list(dataclasses.asdict(cell).items())):
             table.insert(0, name, value)
         table.insert(1, "psf_scale", scale)
-        with atomic_path(out_dir / "cells" / f"{cell.output_name(scale)}.parquet") as tmp:
-            table.to_parquet(tmp, index=False)
+        write_cell(out_dir, config, cell.output_name(scale), table)
         used[cell.output_name(scale)] = len(rows)
         rates[scale] = k / scored if scored else float("nan")
     timings["images"] = used
     timings["rates"] = rates
     return timings
+
+
+def cell_record(out_dir: Path, name: str) -> Path:
+    """The record of the cell ``name`` (:mod:`bench.common.units`) beside its parquet."""
+    return out_dir / "cells" / f"{name}.json"
+
+
+def write_cell(out_dir: Path, config: StudyConfig, name: str, table: pd.DataFrame) -> None:
+    """A cell's parquet and its record: the record first, with the hash of the parquet about to
+    be renamed into place, so a cell file is never found without its record."""
+    path = out_dir / "cells" / f"{name}.parquet"
+    with atomic_path(path) as tmp:
+        table.to_parquet(tmp, index=False)
+        files = {path.name: sha256(tmp)}
+        record = {"unit": name, "settings_sha256": config.settings_hash(), "files": files}
+        write_unit(cell_record(out_dir, name), record)
+
+
+def cell_state(out_dir: Path, name: str, settings_sha256: str) -> str:
+    """Whether the cell ``name`` is done and intact (:func:`bench.common.units.unit_state`)."""
+    return unit_state(cell_record(out_dir, name), settings_sha256, {"unit": name})
 
 
 def _score_image(

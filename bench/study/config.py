@@ -7,12 +7,14 @@ A :class:`StudyConfig` is validated when built, so every later stage can trust i
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 import zlib
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from bench.common.manifest import json_sha256
 from pipeline.backends import BackendUnavailableError, check_family, get_backend, require
 from pipeline.detect import DetectorConfig
 from scenes.lighting import get_lighting
@@ -162,6 +164,10 @@ class StudyConfig:
         out = dataclasses.asdict(self)
         out["camera"] = self.camera.to_json()
         return out
+
+    def settings_hash(self) -> str:
+        """The hash of the config's JSON, as written: the folder's, and each cell's record's."""
+        return json_sha256(json.loads(json.dumps(self.to_json(), default=str)))
 
 
 @dataclass(frozen=True)

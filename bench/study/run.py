@@ -20,9 +20,10 @@ from bench.common.atomic import atomic_path, write_bytes, write_json
 from bench.common.executor import TaskPool, effective_executor
 from bench.common.manifest import hash_files
 from bench.common.resumable import finish_run, open_run
+from bench.common.units import DAMAGED, DONE
 from bench.study import plots as report_plots
 from bench.study import report
-from bench.study.cells import init_study_worker, run_cell
+from bench.study.cells import cell_state, init_study_worker, run_cell
 from bench.study.config import Cell, StudyConfig, StudyConfigError
 from renderers.marker_renderer import MarkerRenderer
 from renderers.variant import init_worker
@@ -117,9 +118,12 @@ def run_study(
 ) -> dict:
     """Run (or resume) the study into ``out_dir`` and return its manifest.
 
-    Finished cells (``cells/<key>_x<scale>.parquet``) are skipped, so rerunning an interrupted
-    command continues it. A folder that holds another command's output, or cells of a study with
-    a different configuration, is refused (StudyConfigError on ``out``) before anything is written.
+    Finished cells (``cells/<key>_x<scale>.parquet``) whose record verifies are skipped, so
+    rerunning an interrupted command continues it; a damaged one is computed again (named in
+    the manifest's ``units_redone``). The folder is locked for the whole run; a folder that is
+    locked, holds another command's output, or cells of a study with a different configuration
+    (by its manifest, lock file or any cell's record) is refused (StudyConfigError on ``out``)
+    before anything is written.
     ``inputs`` (path: SHA-256, e.g. the camera profile's file) go into the manifest. The cells
     run on ``executor`` (:class:`~bench.common.executor.TaskPool`), recorded in the manifest but
     not in the settings: any executor resumes the folder.
@@ -129,101 +133,109 @@ def run_study(
     t0 = time.perf_counter()
     config_json = json.loads(json.dumps(config.to_json(), default=str))
     try:
-        run = open_run(out_dir, "detectability", config_json, units="cells/*.parquet")
+        run = open_run(
+            out_dir, "detectability", config_json, config.settings_hash(), units="cells/*",
+            written=("", "cells", "images", "images/*"),
+        )  # fmt: skip
     except ValueError as exc:
         raise StudyConfigError("out", str(exc)) from None
-    write_json(out_dir / "config.json", config_json)
+    with run:  # the folder stays locked until the manifest is written
+        settings = run.settings_sha256
+        write_json(out_dir / "config.json", config_json)
 
-    # --- Cells: the grid, then refinement rounds between the last passing and first failing tilt
-    threads = None if effective_executor(executor, workers, scheduler) == "inline" else 1
-    chosen = init_worker(variant)  # recorded in the manifest; workers are given the same
-    stage = {"render_s": 0.0, "optics_s": 0.0, "sensor_s": 0.0, "detect_s": 0.0}
-    t_cells = time.perf_counter()
-    plan = [(cell, config.psf_scales) for cell in config.cells()]
-    done: list[tuple[Cell, float]] = []
-    known: dict[tuple[Cell, float], float] = {}
-    computed = rounds = 0
-    setup_args = (config, chosen, threads)
-    with TaskPool(workers, init_study_worker, setup_args, executor, scheduler) as pool:
-        ran_on = pool.describe()
-        while plan:
-            tasks = []
-            # Large markers first: they pass, and passing cells draw the most images, so the
-            # long tasks start early and the workers finish together.
-            for cell, scales in sorted(plan, key=lambda item: -item[0].size_mm):
-                todo = tuple(s for s in scales if not _cell_path(out_dir, cell, s).exists())
-                if todo:
-                    tasks.append(_CellTask(config, cell, todo, out_dir, save_images))
-            desc = "detectability cells" if rounds == 0 else f"refining tilts (round {rounds})"
-            for task, timings in pool.map(_run_task, tasks, desc=desc, progress=progress):
-                for key in stage:
-                    stage[key] += timings[key]
-                computed += len(timings["images"])
-                known.update({(task.cell, s): r for s, r in timings["rates"].items()})
-            done += [(cell, s) for cell, scales in plan for s in scales]
-            plan = _refinement_cells(config, _rates(out_dir, done, known))
-            rounds += 1
-    wall["cells_s"] = time.perf_counter() - t_cells
+        # --- Cells: the grid, then refinement rounds between the last pass and the first fail
+        threads = None if effective_executor(executor, workers, scheduler) == "inline" else 1
+        chosen = init_worker(variant)  # recorded in the manifest; workers are given the same
+        stage = {"render_s": 0.0, "optics_s": 0.0, "sensor_s": 0.0, "detect_s": 0.0}
+        t_cells = time.perf_counter()
+        plan = [(cell, config.psf_scales) for cell in config.cells()]
+        done: list[tuple[Cell, float]] = []
+        known: dict[tuple[Cell, float], float] = {}
+        computed = rounds = 0
+        setup_args = (config, chosen, threads)
+        with TaskPool(workers, init_study_worker, setup_args, executor, scheduler) as pool:
+            ran_on = pool.describe()
+            while plan:
+                tasks = []
+                # Large markers first: they pass, and passing cells draw the most images, so the
+                # long tasks start early and the workers finish together.
+                for cell, scales in sorted(plan, key=lambda item: -item[0].size_mm):
+                    states = {s: cell_state(out_dir, cell.output_name(s), settings) for s in scales}
+                    run.redone += [cell.output_name(s) for s, v in states.items() if v == DAMAGED]
+                    todo = tuple(s for s in scales if states[s] != DONE)
+                    if todo:
+                        tasks.append(_CellTask(config, cell, todo, out_dir, save_images))
+                desc = "detectability cells" if rounds == 0 else f"refining tilts (round {rounds})"
+                for task, timings in pool.map(_run_task, tasks, desc=desc, progress=progress):
+                    for key in stage:
+                        stage[key] += timings[key]
+                    computed += len(timings["images"])
+                    known.update({(task.cell, s): r for s, r in timings["rates"].items()})
+                done += [(cell, s) for cell, scales in plan for s in scales]
+                plan = _refinement_cells(config, _rates(out_dir, done, known))
+                rounds += 1
+        wall["cells_s"] = time.perf_counter() - t_cells
 
-    # --- Tables
-    t_tab = time.perf_counter()
-    images = pq.read_table([str(_cell_path(out_dir, c, s)) for c, s in done]).to_pandas()
-    images = images.sort_values(report.CELL_KEYS + ["image_index"], kind="stable")
-    images.insert(0, "detector", config.detector.backend)
-    with atomic_path(out_dir / "images.parquet") as tmp:
-        images.to_parquet(tmp, index=False)
-    refinements = report.refinements_of(config.detector.backend)
-    summary = report.summarize(images, refinements=refinements)
-    summary.insert(0, "detector", config.detector.backend)
-    write_bytes(out_dir / "summary.csv", report.summary_to_csv_bytes(summary))
-    max_phi = report.max_phi(summary)
-    write_bytes(out_dir / "max_phi_by_scale.csv", report.summary_to_csv_bytes(max_phi))
-    band = report.band(max_phi)
-    write_bytes(out_dir / "max_phi.csv", report.summary_to_csv_bytes(band))
-    counts = images.groupby(report.CELL_KEYS).size()
-    images_used = {
-        Cell(lg, sz, al, ph).output_name(sc): int(n) for (lg, sc, sz, al, ph), n in counts.items()
-    }
-    wall["tables_s"] = time.perf_counter() - t_tab
+        # --- Tables
+        t_tab = time.perf_counter()
+        images = pq.read_table([str(_cell_path(out_dir, c, s)) for c, s in done]).to_pandas()
+        images = images.sort_values(report.CELL_KEYS + ["image_index"], kind="stable")
+        images.insert(0, "detector", config.detector.backend)
+        with atomic_path(out_dir / "images.parquet") as tmp:
+            images.to_parquet(tmp, index=False)
+        refinements = report.refinements_of(config.detector.backend)
+        summary = report.summarize(images, refinements=refinements)
+        summary.insert(0, "detector", config.detector.backend)
+        write_bytes(out_dir / "summary.csv", report.summary_to_csv_bytes(summary))
+        max_phi = report.max_phi(summary)
+        write_bytes(out_dir / "max_phi_by_scale.csv", report.summary_to_csv_bytes(max_phi))
+        band = report.band(max_phi)
+        write_bytes(out_dir / "max_phi.csv", report.summary_to_csv_bytes(band))
+        counts = images.groupby(report.CELL_KEYS).size()
+        images_used = {
+            Cell(lg, sz, al, ph).output_name(sc): int(n)
+            for (lg, sc, sz, al, ph), n in counts.items()
+        }
+        wall["tables_s"] = time.perf_counter() - t_tab
 
-    # --- Plots
-    t_plot = time.perf_counter()
-    detector = {"detector": config.detector_label}
-    for name, plot, table, options in (
-        ("max_phi.png", report_plots.plot_max_phi, max_phi, detector),
-        ("heatmap.png", report_plots.plot_heatmap, summary, detector),
-        ("pose_error.png", report_plots.plot_pose_error, summary,
-         {**detector, "refinements": refinements}),
-    ):  # fmt: skip
-        with atomic_path(out_dir / name) as tmp:
-            plot(table, tmp, **options)
-    wall["plots_s"] = time.perf_counter() - t_plot
-    wall["total_s"] = time.perf_counter() - t0
+        # --- Plots
+        t_plot = time.perf_counter()
+        detector = {"detector": config.detector_label}
+        for name, plot, table, options in (
+            ("max_phi.png", report_plots.plot_max_phi, max_phi, detector),
+            ("heatmap.png", report_plots.plot_heatmap, summary, detector),
+            ("pose_error.png", report_plots.plot_pose_error, summary,
+             {**detector, "refinements": refinements}),
+        ):  # fmt: skip
+            with atomic_path(out_dir / name) as tmp:
+                plot(table, tmp, **options)
+        wall["plots_s"] = time.perf_counter() - t_plot
+        wall["total_s"] = time.perf_counter() - t0
 
-    # --- Manifest
-    n_images = int(sum(images_used.values()))
-    tables = ["images.parquet", "summary.csv", "max_phi_by_scale.csv", "max_phi.csv"]
-    plots = ["max_phi.png", "heatmap.png", "pose_error.png"]
-    return finish_run(
-        run,
-        seed=config.seed,
-        variant=chosen,
-        inputs=inputs,
-        outputs=hash_files([out_dir / n for n in ["config.json", *tables, *plots]], out_dir),
-        study="detectability",
-        detector=config.detector.backend,
-        family=config.dictionary,
-        backend_failures=_backend_failures(summary),
-        camera_profile=config.camera.name,
-        psf_scales=list(config.psf_scales),
-        **ran_on,
-        cells_total=len(done),
-        cells_computed=computed,
-        cells_resumed=len(done) - computed,
-        refinement_rounds=rounds - 1,
-        images_total=n_images,
-        images_per_cell=dict(sorted(images_used.items())),
-        wall_s={k: round(v, 3) for k, v in wall.items()},  # the phases, with total_s
-        stage_cpu_s={k: round(v, 3) for k, v in stage.items()},
-        images_per_s=round(n_images / wall["cells_s"], 1) if computed else None,
-    )
+        # --- Manifest
+        n_images = int(sum(images_used.values()))
+        tables = ["images.parquet", "summary.csv", "max_phi_by_scale.csv", "max_phi.csv"]
+        plots = ["max_phi.png", "heatmap.png", "pose_error.png"]
+        return finish_run(
+            run,
+            seed=config.seed,
+            variant=chosen,
+            inputs=inputs,
+            outputs=hash_files([out_dir / n for n in ["config.json", *tables, *plots]], out_dir),
+            study="detectability",
+            detector=config.detector.backend,
+            family=config.dictionary,
+            backend_failures=_backend_failures(summary),
+            camera_profile=config.camera.name,
+            psf_scales=list(config.psf_scales),
+            **ran_on,
+            cells_total=len(done),
+            cells_computed=computed,
+            cells_resumed=len(done) - computed,
+            refinement_rounds=rounds - 1,
+            images_total=n_images,
+            images_per_cell=dict(sorted(images_used.items())),
+            wall_s={k: round(v, 3) for k, v in wall.items()},  # the phases, with total_s
+            stage_cpu_s={k: round(v, 3) for k, v in stage.items()},
+            images_per_s=round(n_images / wall["cells_s"], 1) if computed else None,
+        )
