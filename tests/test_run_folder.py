@@ -278,20 +278,29 @@ def test_a_file_or_folder_of_another_run_is_refused(tmp_path, capsys) -> None:
     sample = next(p for p in sorted(data.iterdir()) if p.is_dir())
     before = _snapshot(data)
     argv = ["camera", "import", tmp_path / "c.yaml", "--format", "kalibr"]
-    code, err = _cli([*argv, "--out", sample / "camera.json"], capsys)
-    assert code == 2 and f"inside the output of `dataset` in {data}" in err
-    code, err = _cli([*argv, "--out", data / "manifest.json"], capsys)
-    assert code == 2 and "inside the output of `dataset`" in err
-    code, err = _cli(["score", data, "--out", sample / "scores"], capsys)
-    assert code == 2 and f"({sample.name} is its own)" in err
-    assert _snapshot(data) == before
+    for target in (sample / "camera.json", sample / "sample.json", data / "manifest.json"):
+        code, err = _cli([*argv, "--out", target], capsys)
+        assert code == 2 and f"{target}: is part of the output of `dataset` in {data}" in err
+    code, err = _cli(["score", data, "--out", sample], capsys)
+    assert code == 2 and f"{sample}: is part of the output of `dataset`" in err
+    study = tmp_path / "study"
+    study.mkdir()
+    (study / "manifest.json").write_text(json.dumps({"kind": "detectability", "outputs": {}}))
+    code, err = _cli(["dataset", "--quick", "--out", study / "cells"], capsys)
+    assert code == 2 and "is part of the output of `detectability`" in err
+    assert _snapshot(data) == before and sorted(p.name for p in study.iterdir()) == [
+        "manifest.json"
+    ]
 
 
-def test_a_dataset_folders_scores_stay_allowed(tmp_path) -> None:
+def test_new_paths_in_a_dataset_folder_stay_allowed(tmp_path) -> None:
+    """``score``'s default output, and ``detect``'s beside a sample's video, replace nothing."""
     from bench.cli.args import check_out_folder
 
     data = _fake(tmp_path)
-    assert check_out_folder(data / "scores" / "paper") == data / "scores" / "paper"
+    sample = next(p for p in sorted(data.iterdir()) if p.is_dir())
+    for allowed in (data / "scores" / "paper", sample / "video.paper"):
+        assert check_out_folder(allowed) == allowed
 
 
 def test_stale_temporary_files_go_at_the_top_level_only(tmp_path) -> None:

@@ -99,32 +99,36 @@ def check_out_path(path: Path, folder: bool) -> None:
         raise ValueError(f"{path}: is a folder, not a file")
 
 
-def owned_names(record: dict) -> set[str]:
-    """The top-level names a run folder's manifest says are its own: its manifest and lock,
-    its outputs, unit folders and samples."""
+def owned_names(record: dict) -> tuple[set[str], set[str]]:
+    """What a run folder's manifest says is its own: (top-level names: its manifest and lock,
+    outputs, unit folders and samples; every file it lists, relative to the folder)."""
     names = {MANIFEST, LOCK, "config.json", *UNIT_FOLDERS}
+    files: set[str] = set()
     for key in ("outputs", "files"):
         if isinstance(record.get(key), dict):
-            names |= {Path(str(k)).parts[0] for k in record[key] if Path(str(k)).parts}
+            files |= {str(Path(str(k))) for k in record[key] if str(k).strip()}
     for key in ("samples", "units"):
         if isinstance(record.get(key), list):
             names |= {str(s) for s in record[key]}
-    return names
+    return names | {Path(f).parts[0] for f in files}, files
 
 
 def check_not_owned(path: Path) -> None:
-    """ValueError when ``path`` is, or lies inside, a file or unit folder of a run folder above
-    it (a dataset's sample, a study's ``cells``, another run's ``manifest.json``)."""
+    """ValueError when ``path`` is a file or a top-level entry (a unit folder, a sample) of a
+    run folder above it: a dataset's ``camera.json``, its sample's folder, a study's ``cells``,
+    another run's ``manifest.json``. A new path deeper down (``detect``'s default output beside
+    a sample's video) replaces nothing and is allowed."""
     path = Path(os.path.abspath(path))
     for above in path.parents:
         record = read_manifest(above)
         if record is None or kind_of(record) == "unknown":
             continue
-        first = path.relative_to(above).parts[0]
-        if first in owned_names(record):
+        rel = path.relative_to(above)
+        names, files = owned_names(record)
+        if str(rel) in files or (len(rel.parts) == 1 and rel.parts[0] in names):
             raise ValueError(
-                f"{path}: inside the output of `{kind_of(record)}` in {above} ({first} is "
-                "its own); choose a folder outside it"
+                f"{path}: is part of the output of `{kind_of(record)}` in {above}; choose a "
+                "path outside it"
             )
 
 
