@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 
 from bench.cli import limits
 from bench.cli.args import check_executor, check_out_folder, distinct, name_list, seed
@@ -246,6 +247,9 @@ def cmd_dataset(args: argparse.Namespace) -> int:
         + ("" if config.psf_scale == 1 else f" at PSF scale {config.psf_scale:g}")
         + ")"
     )
+    if manifest["units_redone"]:
+        redone = manifest["units_redone"]
+        print(f"damaged samples made again: {', '.join(redone)}", file=sys.stderr)
     groups = manifest["foliage_groups"]
     print(
         "samples sharing foliage (one layout each): "
