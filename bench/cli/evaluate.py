@@ -254,9 +254,30 @@ def add_compare_options(p: argparse.ArgumentParser) -> None:
         "(default: the dataset's own, from its samples' camera.json)",
     )
     p.add_argument(
+        "--speed-frames",
+        type=int,
+        default=40,
+        metavar="N",
+        help="frames of the dataset to time each pipeline on, in runs of 10 consecutive frames "
+        f"spread evenly over its samples (default 40, 1..{limits.MAX_SPEED_FRAMES})",
+    )
+    _add_rounds_option(p, "--speed-rounds")
+    p.add_argument(
         "--variant", choices=VARIANTS, help="Mitsuba variant (default: the fastest available)"
     )
     _add_workers_options(p, "one sample or sweep render each")
+
+
+def _add_rounds_option(p: argparse.ArgumentParser, name: str) -> None:
+    low, high = limits.SPEED_ROUNDS_RANGE
+    p.add_argument(
+        name,
+        type=int,
+        default=5,
+        metavar="R",
+        help="timing rounds, the pipelines alternating in each; frames/s is the median, the "
+        f"slowest and fastest round its spread (default 5, {low}..{high})",
+    )
 
 
 def _sweep_camera(option: str | None, dataset: Path):
@@ -274,11 +295,20 @@ def _sweep_camera(option: str | None, dataset: Path):
         raise ValueError(f"--camera: {exc.detail}") from None
 
 
+def _dataset_lens(dataset: Path):
+    """The lens of the dataset's first sample (its frames' size), None where there is no
+    readable one (run_compare then refuses the folder in its own words)."""
+    try:
+        return _sweep_camera(None, dataset).lens
+    except (ValueError, AttributeError):  # None: no sample
+        return None
+
+
 def cmd_compare(args: argparse.Namespace) -> int:
     import pandas as pd
 
     from bench.evaluate.compare import run_compare
-    from bench.evaluate.leaders import band_lines
+    from bench.evaluate.leaders import band_lines, spread_verdict
     from bench.evaluate.score import dataset_family
     from bench.evaluate.sweep_config import QUICK_SWEEP, SweepConfig
     from bench.study.config import alphas_within
@@ -302,6 +332,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
         check_out_folder(args.dataset / "scores", "dataset")  # each variant's scores go there
         check_out_folder(out)
         limits.check_sweep(sweep, len(args.pipelines))
+        limits.check_speed_rounds("speed-rounds", args.speed_rounds)
+        limits.check_speed_frames("speed-frames", args.speed_frames, _dataset_lens(args.dataset))
         executor = _check_workers(args)
     except FieldError as exc:
         return fail(f"{'DATASET' if exc.field == 'dataset' else '--' + exc.field}: {exc.detail}")
@@ -322,6 +354,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
             args.pipelines,
             out,
             sweep,
+            speed_frames=args.speed_frames,
+            speed_rounds=args.speed_rounds,
             variant=args.variant,
             workers=args.workers,
             executor=executor,
@@ -337,8 +371,17 @@ def cmd_compare(args: argparse.Namespace) -> int:
                 f"correct {row.correct_rate:.0%}, recall {row.recall:.3f}, deflection error "
                 f"{row.deflection_err_mm:.2f} mm"
             )
-        print(f"{row.pipeline:>24}: {row.fps:7.1f} frames/s, {accuracy}")
-    for line in band_lines(pd.read_csv(out / "leaders.csv")):
+        speed = (
+            f"{row.fps:7.1f} frames/s ({row.fps_min:.1f}-{row.fps_max:.1f})"
+            if math.isfinite(row.fps)
+            else "accuracy only (not timed)"
+        )
+        print(f"{row.pipeline:>24}: {speed}, {accuracy}")
+    leads = pd.read_csv(out / "leaders.csv")
+    for row in leads[leads["measure"] == "fps"].itertuples(index=False):
+        if isinstance(row.lead_within_spread, bool):
+            print(f"speed lead of {row.leader}: {spread_verdict(row)}")
+    for line in band_lines(leads):
         print(line)
     print(f"wrote {out}/report.md")
     return 0
@@ -352,6 +395,7 @@ def add_bench_pipeline_options(p: argparse.ArgumentParser) -> None:
         help=f"variants to time; ratios are against the first (default {DEFAULT_PIPELINES_HELP})",
     )
     p.add_argument("--frames", type=int, default=30, help="full frames to time (default 30)")
+    _add_rounds_option(p, "--rounds")
     p.add_argument("--out", type=Path, help="also write bench.json into this folder")
     p.add_argument(
         "--variant", choices=VARIANTS, help="Mitsuba variant (default: the fastest available)"
@@ -366,6 +410,11 @@ def cmd_bench_pipeline(args: argparse.Namespace) -> int:
 
     if args.frames < 2:
         raise DatasetConfigError("frames", f"{args.frames}: must be >= 2")
+    try:
+        limits.check_speed_rounds("rounds", args.rounds)
+    except FieldError as exc:
+        print(f"whiskerbench bench pipeline: error: --rounds: {exc.detail}", file=sys.stderr)
+        return 2
     lens = SPEED_SAMPLE.camera.lens
     scales = 1 + len(band_scales(SPEED_SAMPLE))  # the frames at 1 and at the band's ends
     size = f"{lens.width_px}x{lens.height_px}"
@@ -375,7 +424,9 @@ def cmd_bench_pipeline(args: argparse.Namespace) -> int:
         check_out_folder(args.out)
     pipelines = args.pipelines or _installed_presets()
     try:
-        bench_pipeline(pipelines, frames=args.frames, variant=args.variant, out=args.out)
+        bench_pipeline(
+            pipelines, frames=args.frames, rounds=args.rounds, variant=args.variant, out=args.out
+        )
     except BackendUnavailableError as exc:  # refused before any work
         print(f"whiskerbench bench pipeline: error: --pipelines: {exc}", file=sys.stderr)
         return 2

@@ -2,8 +2,11 @@
 
 Per variant, measured in the same run on this machine:
 
-* **speed**: frames/s of detection and pose on full 2592 x 1944 frames with 13 markers, one
-  OpenCV thread (:mod:`bench.evaluate.speed`, the same frames for every variant);
+* **speed**: frames/s of detection and pose on frames of the dataset compared, one OpenCV
+  thread: runs of consecutive frames spread evenly over its samples, the variants alternating,
+  in repeated rounds; the median over rounds and the slowest and fastest round
+  (:mod:`bench.evaluate.timing`, ``docs/speed.md``; the frames in ``speed_frames.csv``, each
+  round in ``speed_rounds.csv``);
 * **accuracy on the dataset**: :func:`bench.score.score_dataset` on every sample (branch outcome
   with the none-twin threshold, marker recall, deflection, corner and pose errors);
 * **failure boundaries**: detection recall and pose error against angular position, marker tilt,
@@ -31,40 +34,33 @@ import time
 from pathlib import Path
 
 import cv2
-import matplotlib
+import pandas as pd
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-import pandas as pd  # noqa: E402
-
-from bench.common.atomic import atomic_path, write_bytes  # noqa: E402
-from bench.common.executor import TaskPool, effective_executor  # noqa: E402
-from bench.common.manifest import (  # noqa: E402
+from bench.common.atomic import atomic_path, write_bytes
+from bench.common.executor import TaskPool, effective_executor
+from bench.common.manifest import (
     RunClock,
     build_manifest,
     claim,
     hash_files,
     write_manifest,
 )
-from bench.evaluate.band import band_section  # noqa: E402
-from bench.evaluate.leaders import is_peer, leader_lines, leaders  # noqa: E402
-from bench.evaluate.speed import (  # noqa: E402
-    SPEED_SAMPLE,
-    full_frames,
+from bench.evaluate.band import band_section
+from bench.evaluate.leaders import is_peer, leader_lines, leaders, spread_verdict
+from bench.evaluate.pareto import plot_pareto
+from bench.evaluate.timing import (
+    RUN_FRAMES,
+    SPEED_FRAMES,
+    SPEED_ROUNDS,
+    dataset_runs,
     one_opencv_thread,
-    time_pipeline,
+    runs_table,
+    speed_figures,
+    speed_of,
+    time_pipelines,
 )
-from pipeline.presets import PipelineConfig  # noqa: E402
-from renderers.variant import init_worker  # noqa: E402
-
-#: Accuracy measures on the dataset: column, label, whether higher is better.
-ACCURACY = (
-    ("correct_rate", "branch outcome correct (fraction of samples)", True),
-    ("recall", "marker recall", True),
-    ("deflection_err_mm", "deflection error (mm, median)", False),
-)
-
+from pipeline.presets import PipelineConfig
+from renderers.variant import init_worker
 
 #: The backend's own pose errors in the scores (NaN for OpenCV, which has none).
 OWN_POSE = ("own_rot_err_deg", "own_trans_err_mm")
@@ -99,71 +95,13 @@ def summarize(name: str, table: pd.DataFrame) -> dict:
     }
 
 
-def pareto_front(speed: np.ndarray, accuracy: np.ndarray, higher_better: bool) -> np.ndarray:
-    """(N,) bool: points no other point beats in both speed and accuracy (ties do not beat).
-
-    A point without an accuracy (NaN: its pipeline refused every sample) is not on the front
-    and beats no other."""
-    acc = np.asarray(accuracy, float) * (1 if higher_better else -1)
-    speed = np.asarray(speed, float)
-    front = np.isfinite(acc)
-    for i in range(len(speed)):
-        better = (speed >= speed[i]) & (acc >= acc[i]) & ((speed > speed[i]) | (acc > acc[i]))
-        front[i] &= not better.any()
-    return front
-
-
-def plot_pareto(summary: pd.DataFrame, path: Path) -> None:
-    """Accuracy against speed, one panel per accuracy measure, the Pareto front drawn.
-
-    The front is computed over every pipeline, peers included; peers are hollow diamonds, the
-    project's pipelines filled circles (red on the front, grey behind it). A pipeline without
-    a value for a measure (it refused every sample) cannot be placed: the panel's title names
-    it, so no pipeline drops out of the chart unsaid."""
-    fig, axes = plt.subplots(1, len(ACCURACY), figsize=(5 * len(ACCURACY), 4), dpi=110)
-    speed = summary["fps"].to_numpy()
-    peer = summary["pipeline"].map(is_peer).to_numpy(bool)
-    for ax, (column, label, higher) in zip(axes, ACCURACY, strict=True):
-        acc = summary[column].to_numpy(float)
-        placed = np.isfinite(acc)
-        front = pareto_front(speed, acc, higher)
-        for mine, where, colour in (
-            (placed & ~front, "behind the front", "#9e9e9e"),
-            (front, "Pareto front", "#d62728"),
-        ):
-            ax.scatter(speed[mine & ~peer], acc[mine & ~peer], c=colour, s=45, label=where)
-            ax.scatter(speed[mine & peer], acc[mine & peer], marker="D", s=55, facecolors="none",
-                       edgecolors=colour, linewidths=1.6, label=f"peer, {where}")  # fmt: skip
-        order = np.argsort(speed[front])
-        ax.plot(speed[front][order], acc[front][order], "-", c="#d62728", lw=1)
-        names = summary["pipeline"].to_numpy()
-        for x, y, name in zip(speed[placed], acc[placed], names[placed], strict=True):
-            ax.annotate(name, (x, y), fontsize=7, xytext=(4, 3), textcoords="offset points")
-        if not placed.all():
-            ax.set_title(f"no value: {', '.join(names[~placed])}", fontsize=8)
-        if placed.any():  # an empty panel has no range to log-scale
-            ax.set_xscale("log")
-        ax.set_xlabel("frames/s, full 2592x1944 frames, one core")
-        ax.set_ylabel(label + ("" if higher else ", lower is better"))
-        ax.grid(alpha=0.3)
-    handles, labels = axes[0].get_legend_handles_labels()
-    shown = [(h, t) for h, t in zip(handles, labels, strict=True) if len(h.get_offsets())]
-    if shown:  # none when every pipeline refused every sample
-        axes[0].legend(*zip(*shown, strict=True), fontsize=7)
-    fig.suptitle("accuracy against speed (hollow diamonds: peer detectors)", fontsize=10)
-    fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png")
-    plt.close(fig)
-
-
 def run_compare(
     dataset: Path,
     pipelines: list[PipelineConfig],
     out_dir: Path,
     sweep=None,
-    speed_frames: int = 30,
-    speed_seconds: float = 2.0,
+    speed_frames: int = SPEED_FRAMES,
+    speed_rounds: int = SPEED_ROUNDS,
     variant: str | None = None,
     workers: int = 1,
     executor: str = "pool",
@@ -171,7 +109,8 @@ def run_compare(
 ) -> pd.DataFrame:
     """Measure every variant (speed, dataset accuracy, sweeps) and write the report.
 
-    Speed: the best of repeats over ``speed_frames`` full frames, run for ``speed_seconds``.
+    Speed: up to ``speed_frames`` frames of the dataset timed, the pipelines alternating,
+    ``speed_rounds`` rounds (:mod:`bench.evaluate.timing`), after the dataset is verified.
     Before anything is written a peer that is not installed
     (:class:`pipeline.backends.BackendUnavailableError`) or a pipeline whose backend cannot
     detect the sweeps' or the dataset's family (ValueError) is refused; then the report
@@ -194,8 +133,8 @@ def run_compare(
         raise ValueError(f"--pipelines: need distinct names, got {names}")
     sweep_pipelines(pipelines, sweep)  # a missing peer or a family it cannot detect: refused now
     family = dataset_family(dataset)
-    for pipeline in pipelines:
-        for_family(pipeline, family)  # the dataset's family too, before any claim
+    # the dataset's family too, before any claim; timed as they score, keyed by name
+    detecting = {p.name: for_family(p, family) for p in pipelines}
     clock = RunClock()
     claim(out_dir, "compare")
     for pipeline in pipelines:
@@ -203,18 +142,20 @@ def run_compare(
     verified = verify_dataset(dataset)  # every file hashed once, before the speed frames
     chosen = init_worker(variant)
     t_start = time.perf_counter()
+    runs = dataset_runs(dataset, speed_frames)
+    timing = time_pipelines(runs, detecting, speed_rounds)
+    timed = runs_table(runs)
+    del runs
+    speed = speed_figures(timing.rounds)
     # one pool scores every pipeline: a Dask cluster or worker processes start once
     pool = TaskPool(workers, executor=executor, scheduler=scheduler)
     with pool, one_opencv_thread():
-        images = full_frames(SPEED_SAMPLE, speed_frames)[0][1.0]
         rows, tables = [], {}
         for pipeline in pipelines:
-            fps, _ = time_pipeline(images, SPEED_SAMPLE, pipeline, speed_seconds)
             scores = dataset / "scores" / pipeline.folder_name
             table = score_dataset(dataset, pipeline, scores, verified, pool=pool)
             tables[pipeline.name] = table
-            rows.append({**summarize(pipeline.name, table), "fps": fps})
-        del images
+            rows.append({**summarize(pipeline.name, table), **speed_of(speed, pipeline.name)})
     summary = pd.DataFrame(rows)
     pool_options = {"workers": workers, "executor": executor, "scheduler": scheduler}
     t_sweeps = time.perf_counter()
@@ -233,6 +174,7 @@ def run_compare(
     out_dir.mkdir(parents=True, exist_ok=True)
     written = write_sweeps(out_dir, sweeps, sweep, pipelines)
     frames = [("summary", summary), ("boundaries", edges), ("leaders", leads)]
+    frames += [("speed_frames", timed), ("speed_rounds", timing.rounds)]
     if band_tables:
         frames += [
             ("sweeps_band_ends", pd.concat(band_tables.values(), ignore_index=True)),
@@ -252,7 +194,12 @@ def run_compare(
         "machine": platform.processor() or platform.machine(),
         "opencv": cv2.__version__,
         "wall_s": time.perf_counter() - t_start,
-        "speed_frames": speed_frames,
+        "speed": {
+            "frames": int(timed["timed"].sum()),
+            "runs": int(timed["run"].nunique()),
+            "samples": int(timed["sample_id"].nunique()),
+            "rounds": speed_rounds,
+        },
         "dataset_psf_scale": dataset_psf_scale(dataset),
         "band": None
         if not band_tables
@@ -277,7 +224,8 @@ def run_compare(
         "pipelines": [p.to_json() for p in pipelines],
         "sweep": sweep.to_json(),  # also in sweep_config.json, beside the sweep table
         "speed_frames": speed_frames,
-        "speed_seconds": speed_seconds,
+        "speed_rounds": speed_rounds,
+        "speed_run_frames": RUN_FRAMES,
     }
     record = build_manifest(
         "compare",
@@ -338,6 +286,8 @@ def render_report(
     columns = [
         "pipeline",
         "fps",
+        "fps_min",
+        "fps_max",
         "correct_rate",
         "recall",
         "deflection_err_mm",
@@ -353,8 +303,8 @@ def render_report(
     lines = [
         "# Pipeline comparison",
         "",
-        f"Dataset `{meta['dataset']}` ({meta['samples']} samples); speed on "
-        f"{meta['speed_frames']} full 2592x1944 frames with 13 markers, one OpenCV thread; "
+        f"Dataset `{meta['dataset']}` ({meta['samples']} samples); speed on its own frames "
+        "(below), one OpenCV thread; "
         f"{meta['cpu_count']} cores, OpenCV {meta['opencv']}, Mitsuba variant {meta['variant']}; "
         f"the whole comparison took {meta['wall_s']:.0f} s.",
         "",
@@ -370,6 +320,7 @@ def render_report(
         *band_section(leads, meta),
         "## Accuracy against speed",
         "",
+        *speed_section(leads, meta["speed"]),
         "![accuracy against speed](pareto.png)",
         "",
         _markdown_table(summary[columns]),
@@ -394,6 +345,24 @@ def render_report(
             )
         lines += [f"![{name} {g}](grids/{g})" for g in grids.get(name, [])] + [""]
     return "\n".join(lines) + "\n"
+
+
+def speed_section(leads: pd.DataFrame, speed: dict) -> list[str]:
+    """How frames/s was measured, and whether the speed lead is within the spread."""
+    lines = [
+        f"Frames/s: {speed['frames']} frames of this dataset, in {speed['runs']} runs of "
+        f"consecutive frames from {speed['samples']} samples (`speed_frames.csv`), each after an "
+        "untimed lead-in frame; the pipelines alternate on every run, each round starting one "
+        f"pipeline later, over {speed['rounds']} rounds (`speed_rounds.csv`), so a change in the "
+        "machine's load falls on all of them alike. `fps` is the median over rounds, `fps_min` "
+        "and `fps_max` the slowest and fastest round (the chart's bars).",
+        "",
+    ]
+    fps = leads[leads["measure"] == "fps"]
+    if len(fps) and isinstance(fps["lead_within_spread"].iloc[0], bool):
+        row = next(fps.itertuples(index=False))
+        lines += [f"The speed lead of {row.leader}: {spread_verdict(row)}.", ""]
+    return lines
 
 
 def refused_lines(summary: pd.DataFrame) -> list[str]:
