@@ -227,6 +227,8 @@ def test_a_tie_or_a_single_timed_pipeline():
     tie = _timed_summary(90.0).assign(fps=[100.0, 100.0, float("nan"), 50.0])
     fps = leaders(tie).set_index("measure").loc["fps"]
     assert fps["leader"] == "paper, fast" and fps["lead_within_spread"] is True
+    pair = tie.iloc[[0, 1]]  # a tie with nobody else timed is still a tie
+    assert leaders(pair).set_index("measure").loc["fps", "lead_within_spread"] is True
     alone = _timed_summary(90.0).iloc[[1, 2]]  # fast, and locus without a speed
     fps = leaders(alone).set_index("measure").loc["fps"]
     assert fps["leader"] == "fast" and fps["lead_within_spread"] is None

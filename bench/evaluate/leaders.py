@@ -149,7 +149,7 @@ def _within_spread(
     high = by_name[spread[1]].astype(float).fillna(values)
     leads = leader.split(", ")
     others = [n for n in values.index[values.notna()] if n not in leads]
-    if not others:
+    if not others and len(leads) == 1:  # nobody else timed: no lead to judge
         return None, ""
     if higher:  # another's best round reaches the leaders' worst
         rivals = [n for n in others if high[n] >= low[leads].min()]
