@@ -198,8 +198,10 @@ def time_pipelines(
 
     In each round every run is tracked by every pipeline in :func:`round_order`; OpenCV runs
     on one thread (:func:`one_opencv_thread`; the peers' adapters use one of their own)."""
-    if rounds < 1 or not pipelines or not any(run.timed_frames for run in runs):
-        raise ValueError(f"need rounds >= 1, a pipeline and a timed frame, got {rounds} rounds")
+    if rounds < 1 or not pipelines:
+        raise ValueError(f"need rounds >= 1 and a pipeline, got {rounds} and {len(pipelines)}")
+    if not any(run.timed_frames for run in runs):
+        raise ValueError("no frames to time: no sample has 2 frames or more")
     names = list(pipelines)
     frames = sum(run.timed_frames for run in runs)
     rows, detections = [], {name: [] for name in names}
