@@ -246,9 +246,13 @@ def _normalized(
         slope = np.median(
             (values[:, :, c_slope:] * x).sum(axis=2) / (x * x).sum(), axis=1, keepdims=True
         )
-        white = white + slope[..., None] * (np.arange(n_s) - mid)
+        sloped = white + slope[..., None] * (np.arange(n_s) - mid)
+        # Light does not fall to the black level within a module: a slope that reaches it is
+        # the quiet zone ending (a cube's edge, a neighbouring dark patch), not light; the
+        # profile keeps its flat white level.
+        light = (sloped - black[..., None]).min(axis=2) >= MIN_CONTRAST * flat
+        white = np.where(light[..., None], sloped, white)
     contrast = white - black[..., None]
-    ok &= contrast.min(axis=2) > 0
     if np.any(ok.sum(axis=1) < MIN_INLIER_FRACTION * values.shape[1]):
         raise _RefineError("low contrast")
     return (values - black[..., None]) / np.where(ok[..., None], contrast, 1.0), ok
