@@ -150,10 +150,12 @@ def consensus_table(folder: Path = PHOTOS_DIR) -> pd.DataFrame:
 
 
 def read_consensus(folder: Path = PHOTOS_DIR) -> pd.DataFrame:
+    """The committed consensus table (``consensus.csv``)."""
     return pd.read_csv(folder / CONSENSUS_FILE)
 
 
 def consensus_corners(row) -> np.ndarray:
+    """(4, 2) corners of one consensus row (a mapping of its columns)."""
     return np.array([[row[x], row[y]] for x, y in CORNER_COLUMNS], dtype=float)
 
 
@@ -205,8 +207,12 @@ def measure(
             side = float(np.linalg.norm(truth - np.roll(truth, 1, axis=0), axis=1).mean())
             outcomes.append(
                 Outcome(
-                    name, int(row["marker_id"]), side, failure,
-                    np.linalg.norm(begin - truth, axis=1), np.linalg.norm(corners - truth, axis=1),
+                    name,
+                    int(row["marker_id"]),
+                    side,
+                    failure,
+                    np.linalg.norm(begin - truth, axis=1),
+                    np.linalg.norm(corners - truth, axis=1),
                     _outward(corners, truth),
                 )  # fmt: skip
             )
@@ -233,6 +239,7 @@ class Figures(NamedTuple):
 
 
 def figures(outcomes: list[Outcome]) -> Figures:
+    """The figures of one method's outcomes."""
     refined = [o for o in outcomes if o.failure is None]
     reasons: dict[str, int] = {}
     for o in outcomes:
