@@ -51,7 +51,7 @@ def test_the_consensus_is_what_the_detectors_agree_on():
 @pytest.fixture(scope="module")
 def opencv_start() -> dict:
     """``lines`` from OpenCV's unrefined corners (as the pipelines use it), both curves."""
-    return {t: measure("lines", "opencv", t) for t in ("srgb", "linear")}
+    return {t: measure("lines", "opencv", t) for t in ("auto", "srgb", "linear")}
 
 
 @needs_peers
@@ -66,7 +66,7 @@ def test_lines_falls_back_rarely_and_says_why(opencv_start, transfer):
 
 
 @needs_peers
-@pytest.mark.parametrize("transfer", ["srgb", "linear"])
+@pytest.mark.parametrize("transfer", ["auto", "srgb", "linear"])
 def test_lines_brings_opencv_corners_closer(opencv_start, transfer):
     f = figures(opencv_start[transfer])
     assert f.median_after_px < 0.5 * f.median_before_px, f
@@ -83,3 +83,28 @@ def test_lines_linear_has_no_outward_bias_and_rarely_moves_a_corner_away():
     refined = [o for o in outcomes if o.failure is None]
     worse = np.concatenate([o.after_px - o.before_px for o in refined])
     assert worse.max() < 0.7  # never by as much as the issue's 0.7-1.7 px
+
+
+#: The issue's three figures with the default settings (transfer="auto"), from each detector's
+#: corners. A refined corner may end up to WORSE_PX (0.25 px) further from the consensus than
+#: its input: the references themselves lie up to 0.59 px from the consensus (0.32 median).
+#: Not met yet (docs/refine_real.md, "What still does not hold"): strict, so that meeting them
+#: turns these into failures to be made plain tests.
+@needs_peers
+@pytest.mark.xfail(strict=True, reason="not met yet: see docs/refine_real.md")
+@pytest.mark.parametrize("start", ["opencv", "locus", "apriltag"])
+def test_lines_defaults_meet_the_issue(start):
+    f = figures(measure("lines", start))
+    assert f.fallback_rate <= 0.15, f
+    assert f.worse_markers == 0, f
+    assert np.isnan(f.large_outward_px) or abs(f.large_outward_px) <= 0.2, f
+
+
+@needs_peers
+def test_lines_auto_is_no_worse_than_srgb_on_photographs(opencv_start):
+    """What "auto" does hold: fewer markers moved away and less outward bias than "srgb", and
+    each fallback's reason is one of FAILURES."""
+    auto, srgb = figures(opencv_start["auto"]), figures(opencv_start["srgb"])
+    assert auto.worse_markers < srgb.worse_markers, (auto, srgb)
+    assert abs(auto.large_outward_px) < 0.5 * abs(srgb.large_outward_px), (auto, srgb)
+    assert set(auto.reasons) <= set(FAILURES)

@@ -23,15 +23,14 @@ from pipeline.backends import available
 
 #: (label, method, start, transfer)
 RUNS = (
-    ("lines from opencv, srgb", "lines", "opencv", "srgb"),
-    ("lines from opencv, linear", "lines", "opencv", "linear"),
-    ("lines from locus, srgb", "lines", "locus", "srgb"),
-    ("lines from locus, linear", "lines", "locus", "linear"),
-    ("lines from apriltag, srgb", "lines", "apriltag", "srgb"),
-    ("lines from apriltag, linear", "lines", "apriltag", "linear"),
-    ("opencv subpix", "subpix", "opencv", "srgb"),
-    ("locus (own corners)", "locus", "locus", "srgb"),
-    ("apriltag (own corners)", "apriltag", "apriltag", "srgb"),
+    *(
+        (f"lines from {start}, {curve}", "lines", start, curve)
+        for start in ("opencv", "locus", "apriltag")
+        for curve in ("auto", "srgb", "linear")
+    ),
+    ("opencv subpix", "subpix", "opencv", "auto"),
+    ("locus (own corners)", "locus", "locus", "auto"),
+    ("apriltag (own corners)", "apriltag", "apriltag", "auto"),
 )
 
 

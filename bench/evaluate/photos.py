@@ -178,7 +178,7 @@ def _outward(corners: np.ndarray, truth: np.ndarray) -> np.ndarray:
 
 
 def measure(
-    method: str, start: str = "opencv", transfer: str = "srgb", folder: Path = PHOTOS_DIR
+    method: str, start: str = "opencv", transfer: str = "auto", folder: Path = PHOTOS_DIR
 ) -> list[Outcome]:
     """Each consensus marker refined by ``method`` ("lines", or a detector's own corners:
     "subpix" for OpenCV's, "locus", "apriltag") from ``start``'s corners ("opencv": unrefined,
