@@ -61,7 +61,7 @@ class DetectorConfig:
     #: Which library finds the markers (:data:`pipeline.backends.BACKENDS`).
     backend: str = "opencv"
     #: The curve that encoded the image, for ``"lines"`` (:data:`pipeline.refine.TRANSFERS`).
-    transfer: str = "srgb"
+    transfer: str = "auto"
 
     def __post_init__(self) -> None:
         if self.backend not in BACKENDS:
