@@ -43,15 +43,16 @@ from pipeline.backends import BackendCrashError
 from pipeline.detect import detect_markers
 from pipeline.presets import PipelineConfig
 from scenes.camera import FisheyeCamera, pinhole_camera
+from scenes.input_limits import FRAME_PIXELS, IMAGES_PER_RUN, TRUTH_CSV_BYTES
 from scenes.marker import get_dictionary
 
 KIND = "detect-images"
 #: Most images one run reads: bounds the detections table and the manifest's digests.
-MAX_IMAGES = 10_000
+MAX_IMAGES = IMAGES_PER_RUN
 #: Largest image read (pixels): a 100 MP photograph; its colour decode is 300 MB.
-MAX_IMAGE_PIXELS = 100_000_000
+MAX_IMAGE_PIXELS = FRAME_PIXELS
 #: Largest truth file read: a row is about 100 bytes, so a million markers.
-MAX_TRUTH_BYTES = 100 << 20
+MAX_TRUTH_BYTES = TRUTH_CSV_BYTES
 CORNER_COLUMNS = tuple(f"{axis}{k}" for k in range(4) for axis in "xy")  # x0, y0, ..., y3
 KEY = ("image", "marker_id")
 TRUTH_COLUMNS = (*KEY, *CORNER_COLUMNS)

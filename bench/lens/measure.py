@@ -20,11 +20,10 @@ from collections import Counter
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 
-import cv2
 import numpy as np
 from tqdm import tqdm
 
-from bench.common.stills import IMAGE_SUFFIXES
+from bench.common.stills import IMAGE_SUFFIXES, StillImageError, read_grey
 from bench.common.video import read_video
 from bench.lens.calibrate import lens_variance, needs_calibration, processing_curve
 from bench.lens.edges import PIXEL_VARIANCE_PX2, edge_geometry, edge_samples, fit_edges
@@ -34,6 +33,7 @@ from bench.lens.profile import with_noise, with_psf, with_stream
 from bench.lens.psf import solve_bins
 from pipeline.detect import DetectorConfig, detect_markers
 from pipeline.refine import LINEAR_LUTS  # code -> linear light per transfer curve
+from scenes.input_limits import FRAME_PIXELS
 from scenes.marker import check_dictionary
 from scenes.profile import CameraProfile
 from scenes.validation import FieldError
@@ -81,15 +81,10 @@ def iter_frames(files: list[Path], images: bool, max_frames: int) -> Iterator[np
     """Grey uint8 frames, at most ``max_frames``; FootageError for an unreadable file."""
     if images:
         for path in files[:max_frames]:
-            frame = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-            if frame is None:
-                raise FootageError(f"{path}: not a readable image")
-            if frame.dtype != np.uint8:
-                raise FootageError(f"{path}: {frame.dtype} pixels; lens measure reads 8-bit frames")
-            if frame.ndim == 3:
-                code = cv2.COLOR_BGRA2GRAY if frame.shape[2] == 4 else cv2.COLOR_BGR2GRAY
-                frame = cv2.cvtColor(frame, code)
-            yield frame
+            try:
+                yield read_grey(path, FRAME_PIXELS)
+            except StillImageError as exc:
+                raise FootageError(str(exc)) from None
         return
     count = 0
     try:
