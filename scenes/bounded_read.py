@@ -61,11 +61,12 @@ def deeper_than(value: Any, limit: int) -> bool:
     return any(isinstance(item, dict | list) for item in level)
 
 
-def parse_json(text: str, max_depth: int) -> Any:
-    """JSON ``text`` nested at most ``max_depth`` levels; BoundedReadError otherwise."""
+def parse_json(text: str | bytes, max_depth: int) -> Any:
+    """JSON ``text`` (bytes: UTF-8, 16 or 32) nested at most ``max_depth`` levels;
+    BoundedReadError otherwise."""
     try:
         data = json.loads(text)
-    except (ValueError, RecursionError) as exc:  # JSONDecodeError, 4300+ digit integers, nesting
+    except (ValueError, RecursionError) as exc:  # bad JSON or text, 4300+ digit integers, nesting
         reason = str(exc).splitlines()[0][:200] if str(exc) else type(exc).__name__
         raise BoundedReadError(f"not valid JSON ({reason})") from None
     if deeper_than(data, max_depth):
@@ -75,7 +76,7 @@ def parse_json(text: str, max_depth: int) -> Any:
 
 def read_json(path: Path | str, max_bytes: int, max_depth: int) -> Any:
     """A JSON file bounded by size, then depth; BoundedReadError (no path) otherwise."""
-    return parse_json(read_bounded_text(path, max_bytes), max_depth)
+    return parse_json(read_bounded_bytes(path, max_bytes), max_depth)
 
 
 class BoundedYamlError(yaml.YAMLError):

@@ -56,6 +56,7 @@ import imageio_ffmpeg  # noqa: E402
 import numpy as np  # noqa: E402
 
 from bench.common.atomic import atomic_path
+from bench.common.video_bounds import StreamFacts, check_stream
 
 DEFAULT_QP = 12
 PRESET = "ultrafast"
@@ -191,14 +192,16 @@ def _ffmpeg_command(out: Path, shape: tuple[int, ...], fps: float, qp: int) -> l
 def read_video(path: Path) -> Iterator[np.ndarray]:
     """Yield the frames of a video as grey uint8 (H, W) images.
 
-    Raises ValueError when the file cannot be opened, or, after the last frame, when fewer frames
-    decoded than the container declares (a truncated or damaged file), so that a consumer never
-    silently gets part of a video.
+    Raises ValueError when the file cannot be opened, is over a bound or changes its frame
+    size (:func:`check_video`, before the first frame is decoded), or, after the last frame,
+    when fewer frames decoded than the container declares (a truncated or damaged file), so
+    that a consumer never silently gets part of a video.
     """
     cap = open_capture(path)
     declared = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
     count = 0
     try:
+        check_stream(cap, path)
         while True:
             ok, frame = cap.read()
             if not ok:
@@ -220,6 +223,7 @@ def video_info(path: Path) -> VideoInfo:
     """
     cap = open_capture(path)
     try:
+        check_stream(cap, path)
         declared = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
         fps = float(cap.get(cv2.CAP_PROP_FPS))
         width = int(cap.get(cv2.CAP_PROP_FRAME_WIDTH))
@@ -231,6 +235,17 @@ def video_info(path: Path) -> VideoInfo:
     if count == 0 or count < declared:
         raise ValueError(f"{path}: {count} frames decode of {declared} declared (truncated?)")
     return VideoInfo(count, fps, width, height)
+
+
+def check_video(path: Path) -> StreamFacts:
+    """The video's frame size and packet count, bounded before any frame is decoded
+    (:func:`bench.common.video_bounds.check_stream`): FileNotFoundError, or ValueError in one
+    line without the path."""
+    cap = open_capture(path)
+    try:
+        return check_stream(cap, path)
+    finally:
+        cap.release()
 
 
 def open_capture(path: Path) -> cv2.VideoCapture:

@@ -24,7 +24,8 @@ import numpy as np
 from tqdm import tqdm
 
 from bench.common.stills import IMAGE_SUFFIXES, StillImageError, read_grey
-from bench.common.video import read_video
+from bench.common.video import check_video, read_video
+from bench.common.video_bounds import VideoBoundsError
 from bench.lens.calibrate import lens_variance, needs_calibration, processing_curve
 from bench.lens.edges import PIXEL_VARIANCE_PX2, edge_geometry, edge_samples, fit_edges
 from bench.lens.jpeg import stream_report
@@ -87,6 +88,12 @@ def iter_frames(files: list[Path], images: bool, max_frames: int) -> Iterator[np
                 raise FootageError(str(exc)) from None
         return
     count = 0
+    try:
+        check_video(files[0])
+    except VideoBoundsError as exc:  # over a bound, or a frame size that changes
+        raise FootageError(f"{files[0]}: {exc}") from None
+    except ValueError:
+        pass  # not a video: read_video below says so
     try:
         for frame in read_video(files[0]):
             yield frame
