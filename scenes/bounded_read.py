@@ -22,6 +22,20 @@ class BoundedReadError(ValueError):
     """A file over a bound, not a regular file, or not parseable; the message says which."""
 
 
+#: Why a path that is not UTF-8 text is refused before OpenCV sees it.
+NOT_UTF8 = "the file name is not valid UTF-8 text; rename it (OpenCV crashes on such a path)"
+
+
+def is_utf8(path: Path | str) -> bool:
+    """Whether the path is UTF-8 text: a name in another encoding is decoded with surrogates
+    (PEP 383), which OpenCV's path arguments cannot take (a segmentation fault, measured)."""
+    try:
+        str(path).encode("utf-8")
+    except UnicodeEncodeError:
+        return False
+    return True
+
+
 def read_bounded_bytes(path: Path | str, max_bytes: int) -> bytes:
     """The bytes of a regular file of at most ``max_bytes``; BoundedReadError otherwise (a FIFO
     or device would block or never end; a file growing while read is cut at the bound)."""

@@ -40,6 +40,7 @@ is recognized as truncated.
 
 from __future__ import annotations
 
+import errno
 import itertools
 import os
 import subprocess
@@ -57,6 +58,7 @@ import numpy as np  # noqa: E402
 
 from bench.common.atomic import atomic_path
 from bench.common.video_bounds import StreamFacts, check_stream
+from scenes.bounded_read import NOT_UTF8, is_utf8
 
 DEFAULT_QP = 12
 PRESET = "ultrafast"
@@ -134,20 +136,24 @@ def _encode(
             count = _pipe_frames(proc.stdin, frames, shape)
         except BrokenPipeError:
             proc.wait()  # ffmpeg exited early: its log says why
-            raise RuntimeError(_ffmpeg_failure(out, proc.returncode, log)) from None
+            raise _ffmpeg_failure(out, proc.returncode, log) from None
         except BaseException:
             proc.kill()
             proc.wait()
             raise
         if proc.wait() != 0:
-            raise RuntimeError(_ffmpeg_failure(out, proc.returncode, log))
+            raise _ffmpeg_failure(out, proc.returncode, log)
     return count
 
 
-def _ffmpeg_failure(out: Path, returncode: int, log: IO[bytes]) -> str:
+def _ffmpeg_failure(out: Path, returncode: int, log: IO[bytes]) -> Exception:
+    """RuntimeError with ffmpeg's log; OSError when the log names a full disk (the
+    environment's failure, told as such by the command line)."""
     log.seek(0)
     message = log.read().decode(errors="replace").strip()[-2000:]
-    return f"ffmpeg failed (exit {returncode}) writing {out}: {message}"
+    if os.strerror(errno.ENOSPC) in message:
+        return OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(out))
+    return RuntimeError(f"ffmpeg failed (exit {returncode}) writing {out}: {message}")
 
 
 def _pipe_frames(pipe: IO[bytes], frames: Iterable[np.ndarray], shape: tuple[int, ...]) -> int:
@@ -253,6 +259,8 @@ def open_capture(path: Path) -> cv2.VideoCapture:
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(path)
+    if not is_utf8(path):
+        raise ValueError(NOT_UTF8)
     log = cv2.utils.logging
     level = log.getLogLevel()
     log.setLogLevel(log.LOG_LEVEL_ERROR)  # a failed open is reported below, in one line

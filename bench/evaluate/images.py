@@ -42,6 +42,7 @@ from bench.common.video import draw_preview
 from pipeline.backends import BackendCrashError
 from pipeline.detect import detect_markers
 from pipeline.presets import PipelineConfig
+from scenes.bounded_read import NOT_UTF8, is_utf8
 from scenes.camera import FisheyeCamera, pinhole_camera
 from scenes.input_limits import FRAME_PIXELS, IMAGES_PER_RUN, TRUTH_CSV_BYTES
 from scenes.marker import get_dictionary
@@ -100,6 +101,8 @@ def image_files(paths: Sequence[Path]) -> list[Path]:
             "images by file name, so give each once"
         )
     for path in files:
+        if not is_utf8(path):
+            raise ImageInputError(f"{path}: {NOT_UTF8}")
         if not cv2.haveImageReader(str(path)):
             raise ImageInputError(f"{path}: not a readable image")
     return files

@@ -34,6 +34,7 @@ from bench.lens.profile import with_noise, with_psf, with_stream
 from bench.lens.psf import solve_bins
 from pipeline.detect import DetectorConfig, detect_markers
 from pipeline.refine import LINEAR_LUTS  # code -> linear light per transfer curve
+from scenes.bounded_read import NOT_UTF8, is_utf8
 from scenes.input_limits import FRAME_PIXELS
 from scenes.marker import check_dictionary
 from scenes.profile import CameraProfile
@@ -58,7 +59,16 @@ class FootageError(ValueError):
 
 
 def footage_files(footage: str | Path | Sequence[str | Path]) -> tuple[list[Path], bool]:
-    """The footage's files and whether they are still images (else one video file)."""
+    """The footage's files and whether they are still images (else one video file); each
+    name UTF-8 text (OpenCV cannot open another)."""
+    files, images = _footage_files(footage)
+    odd = next((p for p in files if not is_utf8(p)), None)
+    if odd is not None:
+        raise FootageError(f"{odd}: {NOT_UTF8}")
+    return files, images
+
+
+def _footage_files(footage: str | Path | Sequence[str | Path]) -> tuple[list[Path], bool]:
     if isinstance(footage, str | Path):
         path = Path(footage)
         if path.is_dir():
