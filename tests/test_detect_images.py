@@ -262,7 +262,10 @@ def test_refused(line, pattern, photos, hostile, capsys, monkeypatch):
 
 @pytest.mark.parametrize(
     "limit, value, pattern",
-    [("MAX_IMAGE_PIXELS", 1000, r"a\.png: PNG of 360 x 240 px is over"), ("MAX_IMAGES", 2, r"over 2")],
+    [
+        ("MAX_IMAGE_PIXELS", 1000, r"a\.png: PNG of 360 x 240 px is over"),
+        ("MAX_IMAGES", 2, r"over 2"),
+    ],
 )
 def test_limits(limit, value, pattern, photos, tmp_path, capsys, monkeypatch):
     monkeypatch.setattr(job, limit, value)
