@@ -5,6 +5,9 @@ machine (README "Performance"; the figures are lower bounds: the fastest rates s
 refused, naming the option that grows it most, when it would need more memory than half of this
 machine's physical memory or run longer than :data:`TIME_BUDGET_S` on all of its cores. The
 message says the estimate, the limit on that option and how it was derived.
+
+The files a user hands over are bounded by :mod:`scenes.input_limits` (a lower layer, so that
+every reader can import them); docs/limits.md lists both kinds.
 """
 
 from __future__ import annotations
