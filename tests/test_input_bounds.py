@@ -324,3 +324,12 @@ def test_fifo_is_refused_not_waited_on(tmp_path, capsys):
 def test_parse_json_takes_what_the_readers_wrote():
     record = {"a": [1, 2, {"b": "c"}], "d": 1.5}
     assert parse_json(json.dumps(record), SETTINGS_DEPTH) == record
+
+
+def test_fifo_truth_file_named_as_such(tmp_path, capsys):
+    (tmp_path / "photos").mkdir()
+    cv2.imwrite(str(tmp_path / "photos" / "a.png"), np.full((48, 64), 128, np.uint8))
+    os.mkfifo(tmp_path / "truth.csv")
+    argv = ["detect-images", tmp_path / "photos", "--pipelines", "paper"]
+    argv += ["--truth", tmp_path / "truth.csv", "--out", tmp_path / "o"]
+    refused(argv, r"--truth: .*truth\.csv: not a regular file", capsys, tmp_path)

@@ -113,8 +113,10 @@ def read_truth(path: Path, files: Sequence[Path], dictionary: str) -> Truth:
     corners in ArUco order and the project's pixel convention), fully checked: every refusal
     names the line and the column."""
     path = Path(path)
-    if not path.is_file():
-        raise ImageInputError(f"{path}: no such file")
+    if not path.is_file():  # a FIFO or device would block or never end
+        raise ImageInputError(
+            f"{path}: {'not a regular file' if path.exists() else 'no such file'}"
+        )
     if path.stat().st_size > MAX_TRUTH_BYTES:
         raise ImageInputError(f"{path}: larger than {MAX_TRUTH_BYTES >> 20} MiB")
     try:
