@@ -215,7 +215,9 @@ CASES: list[tuple[str, str]] = [
     ("dataset --amplitude=1e9", r"--amplitude.*\(0, 1000\]"),
     ("dataset --passes=0", r"--passes.*>= 1"),
     ("dataset --passes=1000000", r"--passes.*GiB.*limit about"),
-    ("dataset --fps=1e9", r"--exposure-ms.*one frame"),
+    ("dataset --passes=800", r"--passes: 800: .*would take .*days.*limit \d+"),  # not --spp
+    ("dataset --fps=1e9", r"--fps: 1e\+09: one frame lasts 1e-06 ms, shorter than the default"),
+    ("dataset --fps=1e9 --exposure-ms=8", r"--exposure-ms.*one frame"),
     ("dataset --exposure-ms=nan", r"--exposure-ms"),
     ("dataset --spp=100000000", r"--spp.*would take.*limit \d+"),
     ("dataset --subframes=0", r"--subframes.*>= 1"),

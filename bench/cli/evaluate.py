@@ -60,6 +60,7 @@ def add_detect_options(p: argparse.ArgumentParser) -> None:
 
 
 def cmd_detect(args: argparse.Namespace) -> int:
+    from bench.common.video import check_video
     from bench.evaluate.detect import run_detect
     from scenes.profile import ProfileError, load_profile
 
@@ -81,6 +82,10 @@ def cmd_detect(args: argparse.Namespace) -> int:
         return fail(f"{args.video}: is a folder, not a video file")
     if not args.video.is_file():
         return fail(f"{args.video}: no such file")
+    try:
+        check_video(args.video)  # bounded before the output is claimed or a frame decoded
+    except ValueError as exc:
+        return fail(f"{args.video}: {exc}")
     out = args.out or args.video.with_name(f"{args.video.stem}.{args.pipeline.folder_name}")
     try:
         check_out_folder(out)

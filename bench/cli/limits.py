@@ -5,6 +5,9 @@ machine (README "Performance"; the figures are lower bounds: the fastest rates s
 refused, naming the option that grows it most, when it would need more memory than half of this
 machine's physical memory or run longer than :data:`TIME_BUDGET_S` on all of its cores. The
 message says the estimate, the limit on that option and how it was derived.
+
+The files a user hands over are bounded by :mod:`scenes.input_limits` (a lower layer, so that
+every reader can import them); docs/limits.md lists both kinds.
 """
 
 from __future__ import annotations
@@ -171,24 +174,30 @@ def dataset_frames(config, protocol: str) -> float:
     return full if math.isinf(full) else float(-(-full // config.frames_step))
 
 
-def _check_sample_memory(config, protocol: str, frames: float, workers: int) -> None:
-    """Refuse a sample whose simulation would not fit, naming the option that lengthened it."""
+def _motion_growth(config, protocol: str) -> dict[str, float]:
+    """How many times longer each motion option makes a sample of ``protocol`` than the
+    protocol's own (a slower speed lengthens it)."""
     from scenes.motion import get_protocol
 
+    base, m = get_protocol(protocol), config.motion(protocol)
+    return {
+        "passes": m.passes / base.passes,
+        "amplitude_mm": m.amplitude_mm / base.amplitude_mm,
+        "speed_mm_s": base.speed_mm_s / m.speed_mm_s,
+        "fps": m.fps / base.fps,
+    }
+
+
+def _check_sample_memory(config, protocol: str, frames: float, workers: int) -> None:
+    """Refuse a sample whose simulation would not fit, naming the option that lengthened it."""
     k = config.sampling.subframes
     per_sample = frames * (k + 1) * SAMPLE_BYTES_PER_TIME_SAMPLE
     budget = memory_budget_bytes() / workers
     if per_sample <= budget:
         return
     factor = budget / per_sample  # how much smaller the sample has to be
-    base, m = get_protocol(protocol), config.motion(protocol)
-    growth = {
-        "passes": m.passes / base.passes,
-        "amplitude_mm": m.amplitude_mm / base.amplitude_mm,
-        "speed_mm_s": base.speed_mm_s / m.speed_mm_s,
-        "fps": m.fps / base.fps,
-        "subframes": k / FrameSampling().subframes,
-    }
+    m = config.motion(protocol)
+    growth = {**_motion_growth(config, protocol), "subframes": k / FrameSampling().subframes}
     field = culprit(growth)
     value = {"amplitude_mm": m.amplitude_mm, "speed_mm_s": m.speed_mm_s, "fps": m.fps}.get(
         field, m.passes if field == "passes" else k
@@ -231,12 +240,25 @@ def check_dataset(config, workers: int = 1) -> None:
         _check_sample_memory(config, protocol, frames, workers)
         samples = sum(1 for s in config.samples() if s.protocol == protocol)
         total += samples * frames * frame_s
-    ratios = {"marker_spp": config.sampling.marker_spp / 4, "subframes": k / 4}
-    field = culprit({**ratios, "dataset_grid": 1.0})
-    value = {"marker_spp": config.sampling.marker_spp, "subframes": k}.get(
-        field, len(config.samples())
-    )
+    # the culprit: the grid on a tie, else the option farthest above its default, the
+    # motion options (which lengthen every sample) included
+    growth = {"dataset_grid": 1.0, "marker_spp": config.sampling.marker_spp / 4, "subframes": k / 4}
+    values = {"marker_spp": config.sampling.marker_spp, "subframes": k}
+    for protocol in config.protocols:
+        m = config.motion(protocol)
+        for name, ratio in _motion_growth(config, protocol).items():
+            if ratio > growth.get(name, 0.0):
+                growth[name], values[name] = ratio, getattr(m, name)
+    field = culprit(growth)
+    value = values.get(field, len(config.samples()))
     what = f"{len(config.samples())} samples at {rays} rays per pixel"
+    if field == "speed_mm_s" and total > TIME_BUDGET_S * cores():  # shorter when larger
+        raise FieldError(
+            field,
+            f"{_num(value)}: {what} would take at least {_duration(total / cores())} on "
+            f"{cores()} cores; lowest allowed about {value * total / (TIME_BUDGET_S * cores()):.3g}"
+            f" ({TIME_BUDGET_TEXT} at the fastest measured rates, README Performance)",
+        )
     check_time(field, total, what, value, total / value)
 
 

@@ -20,6 +20,7 @@ from bench.cli.args import (
     add_executor_options,
     check_executor,
     check_out_folder,
+    check_variant,
     float_list,
     psf_scales_option,
     seed,
@@ -37,7 +38,13 @@ from bench.cli.evaluate import (
     cmd_detect,
     cmd_score,
 )
-from bench.cli.exits import bug_report, end_quietly, stdout_closed
+from bench.cli.exits import (
+    bug_report,
+    end_quietly,
+    environment_failure,
+    stdout_closed,
+    undecodable_argument,
+)
 from bench.cli.images import add_images_parser
 from bench.cli.ladder import add_ladder_parser
 from bench.cli.lens import add_lens_parser
@@ -392,23 +399,6 @@ def command_name(args: argparse.Namespace) -> str:
     return " ".join([args.command, *(getattr(args, k) for k in subcommands if hasattr(args, k))])
 
 
-def _check_variant(requested: str | None) -> None:
-    """A ``--variant`` this machine cannot run (cuda_ad_rgb without a GPU, llvm_ad_rgb without
-    libLLVM) is refused before any command claims a folder; setting it here is what the command
-    would do first anyway (idempotent)."""
-    if requested is None:
-        return
-    from renderers.variant import gpu_present, select_variant
-
-    if requested.startswith("cuda") and not gpu_present():
-        raise FieldError("variant", f"{requested} needs an NVIDIA GPU; this machine has none")
-    try:
-        select_variant(requested)
-    except (ValueError, RuntimeError) as exc:
-        reason = str(exc).removeprefix("no Mitsuba variant could be set: ")
-        raise FieldError("variant", f"cannot be used on this machine: {reason}") from None
-
-
 def main(argv: list[str] | None = None) -> int:
     """Run one command; its exit code. A reader that closes stdout early (``| head -1``)
     wanted no more output: the command ends quietly, with SIGPIPE's shell exit code."""
@@ -416,7 +406,8 @@ def main(argv: list[str] | None = None) -> int:
         try:
             return _main(argv)
         finally:
-            sys.stdout.flush()  # a reader gone shows here, not at interpreter exit
+            if sys.stdout is not None:  # None: started with stdout closed (>&-)
+                sys.stdout.flush()  # a reader gone shows here, not at interpreter exit
     except BrokenPipeError:
         return end_quietly()
 
@@ -426,8 +417,12 @@ def _main(argv: list[str] | None) -> int:
     args = parser.parse_args(argv)
     command = command_name(args)
     args.kept = "nothing was written"
+    odd = undecodable_argument(sys.argv[1:] if argv is None else [str(a) for a in argv])
+    if odd is not None:
+        print(f"whiskerbench {command}: error: {odd}", file=sys.stderr)
+        return 2
     try:
-        _check_variant(getattr(args, "variant", None))
+        check_variant(getattr(args, "variant", None))
         return args.func(args)
     except FieldError as exc:
         option = {**OPTION_OF_FIELD, **DATASET_OPTION_OF_FIELD}.get(exc.field, exc.field)
@@ -440,7 +435,8 @@ def _main(argv: list[str] | None) -> int:
     except Exception as exc:  # a bug, not the input: say so, briefly
         if isinstance(exc, BrokenPipeError) and stdout_closed():
             raise  # not a bug: main ends quietly
-        print(bug_report(command, exc), file=sys.stderr)
+        line = environment_failure(command, exc, args.kept)  # the system's, not a bug
+        print(line or bug_report(command, exc), file=sys.stderr)
         return 1
 
 

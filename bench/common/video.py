@@ -40,6 +40,7 @@ is recognized as truncated.
 
 from __future__ import annotations
 
+import errno
 import itertools
 import os
 import subprocess
@@ -56,6 +57,8 @@ import imageio_ffmpeg  # noqa: E402
 import numpy as np  # noqa: E402
 
 from bench.common.atomic import atomic_path
+from bench.common.video_bounds import StreamFacts, check_stream
+from scenes.bounded_read import NOT_UTF8, is_utf8
 
 DEFAULT_QP = 12
 PRESET = "ultrafast"
@@ -133,20 +136,24 @@ def _encode(
             count = _pipe_frames(proc.stdin, frames, shape)
         except BrokenPipeError:
             proc.wait()  # ffmpeg exited early: its log says why
-            raise RuntimeError(_ffmpeg_failure(out, proc.returncode, log)) from None
+            raise _ffmpeg_failure(out, proc.returncode, log) from None
         except BaseException:
             proc.kill()
             proc.wait()
             raise
         if proc.wait() != 0:
-            raise RuntimeError(_ffmpeg_failure(out, proc.returncode, log))
+            raise _ffmpeg_failure(out, proc.returncode, log)
     return count
 
 
-def _ffmpeg_failure(out: Path, returncode: int, log: IO[bytes]) -> str:
+def _ffmpeg_failure(out: Path, returncode: int, log: IO[bytes]) -> Exception:
+    """RuntimeError with ffmpeg's log; OSError when the log names a full disk (the
+    environment's failure, told as such by the command line)."""
     log.seek(0)
     message = log.read().decode(errors="replace").strip()[-2000:]
-    return f"ffmpeg failed (exit {returncode}) writing {out}: {message}"
+    if os.strerror(errno.ENOSPC) in message:
+        return OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(out))
+    return RuntimeError(f"ffmpeg failed (exit {returncode}) writing {out}: {message}")
 
 
 def _pipe_frames(pipe: IO[bytes], frames: Iterable[np.ndarray], shape: tuple[int, ...]) -> int:
@@ -191,14 +198,16 @@ def _ffmpeg_command(out: Path, shape: tuple[int, ...], fps: float, qp: int) -> l
 def read_video(path: Path) -> Iterator[np.ndarray]:
     """Yield the frames of a video as grey uint8 (H, W) images.
 
-    Raises ValueError when the file cannot be opened, or, after the last frame, when fewer frames
-    decoded than the container declares (a truncated or damaged file), so that a consumer never
-    silently gets part of a video.
+    Raises ValueError when the file cannot be opened, is over a bound or changes its frame
+    size (:func:`check_video`, before the first frame is decoded), or, after the last frame,
+    when fewer frames decoded than the container declares (a truncated or damaged file), so
+    that a consumer never silently gets part of a video.
     """
     cap = open_capture(path)
     declared = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
     count = 0
     try:
+        check_stream(cap, path)
         while True:
             ok, frame = cap.read()
             if not ok:
@@ -220,6 +229,7 @@ def video_info(path: Path) -> VideoInfo:
     """
     cap = open_capture(path)
     try:
+        check_stream(cap, path)
         declared = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
         fps = float(cap.get(cv2.CAP_PROP_FPS))
         width = int(cap.get(cv2.CAP_PROP_FRAME_WIDTH))
@@ -233,11 +243,24 @@ def video_info(path: Path) -> VideoInfo:
     return VideoInfo(count, fps, width, height)
 
 
+def check_video(path: Path) -> StreamFacts:
+    """The video's frame size and packet count, bounded before any frame is decoded
+    (:func:`bench.common.video_bounds.check_stream`): FileNotFoundError, or ValueError in one
+    line without the path."""
+    cap = open_capture(path)
+    try:
+        return check_stream(cap, path)
+    finally:
+        cap.release()
+
+
 def open_capture(path: Path) -> cv2.VideoCapture:
     """An opened FFmpeg capture of ``path``: FileNotFoundError, or ValueError in one line."""
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(path)
+    if not is_utf8(path):
+        raise ValueError(NOT_UTF8)
     log = cv2.utils.logging
     level = log.getLogLevel()
     log.setLogLevel(log.LOG_LEVEL_ERROR)  # a failed open is reported below, in one line

@@ -17,7 +17,6 @@ exact labels with the profile's lens; :mod:`bench.common.video` writes the video
 from __future__ import annotations
 
 import dataclasses
-import json
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -30,7 +29,9 @@ from bench.common.atomic import atomic_path, write_json
 from bench.common.manifest import sha256
 from bench.dataset.config import SAMPLE_FILES, DatasetConfig, SampleSpec
 from bench.dataset.labels import corners_of_frame, label_table
+from scenes.bounded_read import read_json
 from scenes.branch_reach import gap_of_branch
+from scenes.input_limits import RECORD_BYTES, RECORD_DEPTH
 from scenes.lighting import get_lighting
 from scenes.marker import check_dictionary
 from scenes.motion import MotionSpec
@@ -245,7 +246,7 @@ def sample_done(folder: Path, settings_sha256: str) -> bool:
     if not record_path.exists():
         return False
     try:
-        record = json.loads(record_path.read_text())
+        record = read_json(record_path, RECORD_BYTES, RECORD_DEPTH)
         files = record["files"]
     except (ValueError, KeyError):
         return False

@@ -10,7 +10,6 @@ is beside it).
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 import time
 from pathlib import Path
@@ -35,7 +34,9 @@ from pipeline.branches import BranchEstimate, estimate_branches, online_threshol
 from pipeline.presets import PipelineConfig  # noqa: E402
 from pipeline.track import MarkerSet, pose_arrays, track  # noqa: E402
 from scenes.array import ArraySpec  # noqa: E402
+from scenes.bounded_read import read_json
 from scenes.camera import FisheyeCamera  # noqa: E402
+from scenes.input_limits import RECORD_BYTES, RECORD_DEPTH
 from scenes.tables import DETECTIONS, ordered  # noqa: E402
 
 
@@ -172,7 +173,7 @@ def _truth_gaps(video: Path) -> list[list[int]] | None:
     if not sample.exists():
         return None
     try:
-        record = json.loads(sample.read_text())
+        record = read_json(sample, RECORD_BYTES, RECORD_DEPTH)
     except ValueError as exc:
         raise ValueError(f"{sample}: not readable JSON ({exc})") from None
     return record.get("branch_gaps") if isinstance(record, dict) else None

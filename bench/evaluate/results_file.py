@@ -23,10 +23,11 @@ import pandas as pd
 
 from bench.common.manifest import sha256
 from bench.dataset.verify import SAMPLE_ID, VerifiedDataset
+from scenes.input_limits import RESULTS_FILE_BYTES
 from scenes.tables import CORNER_COLUMNS, ROTATION_COLUMNS, TRANSLATION_COLUMNS
 
 #: Largest results file read (bytes), and most rows in all files together.
-MAX_FILE_BYTES = 1 << 30
+MAX_FILE_BYTES = RESULTS_FILE_BYTES
 MAX_ROWS = 10_000_000
 SUFFIXES = (".csv", ".parquet")
 #: How far (px) past the image's edge ([-0.5, W - 0.5] x [-0.5, H - 0.5]) a corner may lie.
