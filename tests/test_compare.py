@@ -337,7 +337,8 @@ def _all_refused(samples: int = 2) -> pd.DataFrame:
 def test_a_pipeline_that_refuses_every_sample_keeps_its_row(tmp_path):
     """No rate, no error (NaN), the counts kept; off the Pareto front, in the chart's and the
     report's words, leading on nothing but its speed."""
-    from bench.evaluate.compare import plot_pareto, refused_lines, summarize
+    from bench.evaluate.compare import plot_pareto, summarize
+    from bench.evaluate.compare_report import refused_lines
     from bench.evaluate.leaders import leaders
 
     row = summarize("naive", _all_refused())

@@ -12,15 +12,25 @@ from pathlib import Path
 
 from bench.cli import limits
 from bench.cli.args import add_executor_options, check_executor, check_out_folder, name_list
-from bench.cli.results import add_results_options, cmd_score_results, wants_results
+from bench.cli.results import (
+    add_results_options,
+    cmd_score_branch_plugin,
+    cmd_score_results,
+    wants_results,
+)
 from pipeline.backends import PEERS_INSTALL
 from pipeline.presets import CHOICES, PRESETS, PipelineConfig, get_pipeline
 from renderers.variant import VARIANTS
 from scenes.validation import FieldError
 
 VARIANT_HELP = (
-    f"a preset ({', '.join(PRESETS)}), optionally changed by /CHOICE=VALUE parts, e.g. "
+    f"a preset ({', '.join(PRESETS)}) or a detector plugin plugin:SPEC (docs/plugins.md), "
+    "optionally changed by /CHOICE=VALUE parts, e.g. "
     f"paper/refine=contour/aruco3=on; choices: {', '.join(CHOICES)}"
+)
+OUTSIDE_HELP = (
+    "; or results:FILE_OR_DIR (another tool's detections, docs/results_format.md) or "
+    "branch-plugin:SPEC (a branch finder, docs/plugins.md), scored on the dataset only"
 )
 
 
@@ -34,6 +44,30 @@ def _pipeline(text: str) -> PipelineConfig:
 def pipelines(text: str) -> list[PipelineConfig]:
     names = name_list("--pipelines")(text)
     return [_pipeline(n) for n in names]
+
+
+def _method(text: str):
+    """A pipeline, ``results:PATH`` or ``branch-plugin:SPEC`` (:mod:`bench.evaluate.outside`)."""
+    from bench.evaluate.outside import parse_method
+
+    try:
+        return parse_method(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def methods(text: str) -> list:
+    """compare's ``--pipelines``: pipelines and outside methods."""
+    return [_method(n) for n in name_list("--pipelines")(text)]
+
+
+def _score_pipeline(text: str):
+    """score's ``--pipeline``: a pipeline, or a branch finder ``branch-plugin:SPEC``."""
+    from bench.evaluate.outside import RESULTS
+
+    if text.startswith(RESULTS):
+        raise argparse.ArgumentTypeError(f"{text!r}: give a results file as --detections")
+    return _method(text)
 
 
 def add_detect_options(p: argparse.ArgumentParser) -> None:
@@ -141,8 +175,8 @@ def add_score_options(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--pipeline",
         default=PRESETS["paper"],
-        type=_pipeline,
-        help=VARIANT_HELP + " (default paper)",
+        type=_score_pipeline,
+        help=VARIANT_HELP + "; or a branch finder branch-plugin:SPEC (default paper)",
     )
     p.add_argument("--out", type=Path, help="output folder (default <dataset>/scores/<pipeline>)")
     add_results_options(p)
@@ -175,6 +209,8 @@ def cmd_score(args: argparse.Namespace) -> int:
         return cmd_score_results(args, fail, executor)
     if not args.dataset.is_dir():
         return fail(f"{args.dataset}: not a dataset folder")
+    if not isinstance(args.pipeline, PipelineConfig):  # a branch finder
+        return cmd_score_branch_plugin(args, fail)
     missing = _missing_detector(args.pipeline)
     if missing:
         return fail(missing)
@@ -236,10 +272,11 @@ def add_compare_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("dataset", type=Path, help="dataset folder (made by whiskerbench dataset)")
     p.add_argument(
         "--pipelines",
-        type=pipelines,
+        type=methods,
         metavar="NAME,...",
         help="variants to compare, comma-separated; each "
         + VARIANT_HELP
+        + OUTSIDE_HELP
         + f" (default {DEFAULT_PIPELINES_HELP})",
     )
     p.add_argument("--out", type=Path, help="report folder (default <dataset>/compare)")
@@ -330,6 +367,10 @@ def cmd_compare(args: argparse.Namespace) -> int:
     except (ValueError, FileNotFoundError, BackendUnavailableError) as exc:
         return fail(str(exc))
     for row in summary.itertuples():
+        speed = "accuracy only" if math.isnan(row.fps) else f"{row.fps:7.1f} frames/s"
+        if row.failed:  # its backend failed: why, and the others went on
+            print(f"{row.pipeline:>24}: failed: {row.failed}")
+            continue
         if row.refused_samples == row.samples:  # no answer to rate: the counts say why
             accuracy = f"refused all {row.samples} samples, no rates"
         else:
@@ -337,7 +378,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
                 f"correct {row.correct_rate:.0%}, recall {row.recall:.3f}, deflection error "
                 f"{row.deflection_err_mm:.2f} mm"
             )
-        print(f"{row.pipeline:>24}: {row.fps:7.1f} frames/s, {accuracy}")
+        print(f"{row.pipeline:>24}: {speed}, {accuracy}")
     for line in band_lines(pd.read_csv(out / "leaders.csv")):
         print(line)
     print(f"wrote {out}/report.md")

@@ -3,7 +3,8 @@
 A comparison with peers (:mod:`pipeline.backends`) must say, measure by measure, whether the
 project's pipelines or a peer detector is ahead; a chart alone leaves it to the reader. A
 *peer* is a pipeline whose preset is named after a peer backend (``locus``, ``apriltag``, and
-their ``/choice=`` variants): the detector as its authors ship it. A project preset on a peer's
+their ``/choice=`` variants): the detector as its authors ship it; so is a method from outside
+the project (a detector plugin, a results file, a branch finder). A project preset on a peer's
 detector (``robust/detector=locus``) is the project's pipeline, and counts as the project's.
 
 Measures come from the ``compare`` summary or ``bench pipeline``'s rows (only the columns
@@ -54,8 +55,16 @@ COLUMNS = (
 )  # fmt: skip
 
 
+#: How the names of methods from outside the project start: a detector plugin, a results file,
+#: a branch finder (:mod:`bench.evaluate.outside`). They count as peers: not the project's.
+OUTSIDE_PREFIXES = ("plugin:", "results:", "branch-plugin:")
+
+
 def is_peer(pipeline: str) -> bool:
-    """Whether the pipeline's preset is a peer backend's (``locus``, ``apriltag/...``)."""
+    """Whether the pipeline's preset is a peer backend's (``locus``, ``apriltag/...``) or the
+    method is from outside the project (a plugin, a results file)."""
+    if pipeline.startswith(OUTSIDE_PREFIXES):
+        return True
     preset = pipeline.split("/")[0]
     return preset in BACKENDS and preset != "opencv"
 
