@@ -67,14 +67,10 @@ def crashes_on_black(image: np.ndarray) -> list:
 # -- branch finders ---------------------------------------------------------------------------
 
 
-def no_branch(frames, camera, meta: dict) -> list:
-    """Reads every frame; finds no branch."""
-    assert meta["frames"] == sum(1 for _ in frames) and "branch_gaps" not in meta
-    assert camera.width_px > 0
-    return []
-
-
 def gap_six(frames, camera, meta: dict) -> list:
+    """Reads every frame (told no truth); finds a branch between whiskers 6 and 7."""
+    assert meta["frames"] == sum(1 for _ in frames) and "branch_gaps" not in meta
+    assert camera.width_px > 0 and meta["array"]["n_whiskers"] == 13
     return [(6, 7)]
 
 

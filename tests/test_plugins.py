@@ -143,7 +143,10 @@ def test_a_plugin_that_breaks_its_contract_is_stopped_by_name(function, says):
 
 @pytest.mark.parametrize(
     ("function", "says"),
-    [("hangs", "did not answer within 1 s"), ("crashes", r"crashed \(signal 11\)")],
+    [
+        pytest.param("hangs", "did not answer within 1 s", marks=pytest.mark.slow),
+        ("crashes", r"crashed \(signal 11\)"),
+    ],
 )
 def test_a_crash_or_hang_costs_the_image_and_three_in_a_row_stop_the_plugin(
     function, says, monkeypatch
@@ -208,9 +211,6 @@ def test_a_branch_finder_is_scored_per_sample(fake, tmp_path, capsys):
     assert table.loc[LONG, "outcome"] == "false_positive"
     manifest = json.loads((out / "manifest.json").read_text())
     assert manifest["config"]["branch_plugin"] == f"branch-plugin:{SAMPLE}:gap_six"
-    argv = ["score", str(fake), "--pipeline", f"branch-plugin:{SAMPLE}:no_branch", "--out",
-            str(tmp_path / "none")]  # fmt: skip
-    assert main(argv) == 0  # it read every frame (the plugin asserts it) and was told no truth
 
 
 def test_a_branch_finder_that_fails(fake, tmp_path, capsys):
