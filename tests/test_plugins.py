@@ -268,3 +268,105 @@ def test_the_example_installed_is_found_by_its_entry_points(tmp_path, monkeypatc
     assert main(argv) == 0  # noise frames: no marker, no motion, no branch
     table = pd.read_csv(out / "samples.csv").set_index("sample_id")
     assert table.loc[LONG, "outcome"] == "correct" and table.loc[SHORT, "outcome"] != "refused"
+
+
+def _exact_results(dataset: Path, path: Path) -> Path:
+    """Every visible marker's labelled corners as a results file: an exact, untimed method."""
+    from bench.dataset.loader import open_dataset
+    from scenes.tables import CORNER_COLUMNS
+
+    corners = [name for pair in CORNER_COLUMNS for name in pair]
+    parts = [
+        s.labels.loc[s.labels["visible"], ["frame", "marker_id", *corners]].assign(sample_id=s.id)
+        for s in open_dataset(dataset)
+    ]
+    pd.concat(parts, ignore_index=True).to_csv(path, index=False)
+    return path
+
+
+@pytest.mark.slow
+def test_compare_runs_plugins_results_and_branch_finders_beside_the_pipelines(
+    rendered_pair, tmp_path
+):
+    import dataclasses
+
+    from bench.evaluate.compare import run_compare
+    from bench.evaluate.outside import parse_method
+    from bench.evaluate.sweep_config import QUICK_SWEEP
+
+    dataset = shutil.copytree(rendered_pair, tmp_path / "data")  # scores go beside it
+    results = _exact_results(dataset, tmp_path / "exact.csv")
+    names = ["naive", f"plugin:{EXAMPLE_FILE}", f"plugin:{SAMPLE}:raises",
+             f"results:{results}", f"branch-plugin:{SAMPLE}:gap_six"]  # fmt: skip
+    sweep = dataclasses.replace(
+        QUICK_SWEEP, alphas_deg=(0.0,), phis_deg=(0.0,), lightings=("lab",), blur_px=(0.0,),
+        read_noise_e=(3.0,), seeds=1, images=2,
+    )  # fmt: skip
+    out = tmp_path / "report"
+    summary = run_compare(
+        dataset, [parse_method(n) for n in names], out, sweep, speed_frames=2, speed_seconds=0.0
+    ).set_index("pipeline")
+    assert summary.index.tolist() == names
+    naive, plugin = summary.loc["naive"], summary.loc[names[1]]
+    # plain OpenCV as a plugin is naive's detector: the same markers, the same corners
+    assert plugin["fps"] > 0 and plugin["recall"] == naive["recall"] > 0.9
+    assert plugin["corner_err_px"] == pytest.approx(naive["corner_err_px"], abs=1e-6)
+    assert "raised ZeroDivisionError: planted" in summary.loc[names[2], "failed"]
+    assert np.isnan(summary.loc[names[2], "recall"])
+    exact = summary.loc[names[3]]
+    assert np.isnan(exact["fps"]) and exact["recall"] == 1 and exact["corner_err_px"] == 0
+    finder = summary.loc[names[4]]
+    assert np.isnan(finder["fps"]) and np.isfinite(finder["correct_rate"])
+    sweeps = pd.read_csv(out / "sweeps.csv")
+    assert set(sweeps["pipeline"]) == {"naive", names[1]}  # the failed one left out
+    leads = pd.read_csv(out / "leaders.csv").set_index("measure")
+    assert leads.loc["recall", "best_peer"] == names[3]  # outside methods are peers
+    report = (out / "report.md").read_text()
+    assert f"- {names[2]}: failed, no measure: " in report
+    assert (out / "pareto.png").stat().st_size > 1000
+    assert (dataset / "scores" / f"results:{str(results).replace('/', '~')}").is_dir()
+
+
+@pytest.mark.slow
+def test_the_study_runs_a_plugin_detector(tmp_path, capsys):
+    out = tmp_path / "study"
+    argv = ["detectability", "--sizes", "13.2", "--alphas", "0", "--phis", "0", "--images", "10",
+            "--lighting", "lab", "--detector", f"{SAMPLE}:good", "--workers", "1",
+            "--out", str(out)]  # fmt: skip
+    assert main(argv) == 0, capsys.readouterr().err
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["config"]["detector"]["backend"] == f"plugin:{SAMPLE}:good"
+    table = pd.read_csv(out / "max_phi.csv")
+    assert len(table) == 1
+
+
+def test_compare_says_which_method_failed_and_which_has_no_speed(
+    fake, tmp_path, monkeypatch, capsys
+):
+    """The console's lines, from run_compare's summary (stubbed: the real one is the slow test
+    above): a failed method says why, an untimed one says accuracy only."""
+    from bench.evaluate import compare
+    from bench.evaluate.compare import failed_row, summarize
+    from bench.evaluate.leaders import leaders
+
+    scored = pd.DataFrame({"outcome": ["correct", "false_positive"], "markers_visible": [4, 4],
+                           "markers_found": [4, 2], "false_detections": [0, 0]})  # fmt: skip
+    for column in ("deflection_err_mm", "corner_err_px", "rot_err_deg", "trans_err_mm"):
+        scored[column] = 0.5
+    failed = failed_row(f"plugin:{SAMPLE}:raises", 2, "detector ... raised ZeroDivisionError")
+    rows = [{**summarize("results:mine.csv", scored), "fps": float("nan")}, failed]
+
+    def run_compare(dataset, pipelines, out, *args, **kwargs):
+        assert [p.name for p in pipelines] == ["results:mine.csv", f"plugin:{SAMPLE}:raises"]
+        out.mkdir(parents=True)
+        summary = pd.DataFrame(rows)
+        leaders(summary).to_csv(out / "leaders.csv", index=False)
+        return summary
+
+    monkeypatch.setattr(compare, "run_compare", run_compare)
+    argv = ["compare", str(fake), "--pipelines", f"results:mine.csv,plugin:{SAMPLE}:raises",
+            "--quick", "--out", str(tmp_path / "report")]  # fmt: skip
+    assert main(argv) == 0
+    out = capsys.readouterr().out
+    assert "results:mine.csv: accuracy only, correct 50%, recall 0.750" in out
+    assert f"plugin:{SAMPLE}:raises: failed: detector ... raised ZeroDivisionError" in out
