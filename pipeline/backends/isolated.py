@@ -73,6 +73,10 @@ class _Worker:
         parent, child = socket.socketpair()
         path = os.pathsep.join(filter(None, [str(_ROOT), os.environ.get("PYTHONPATH")]))
         env = dict(os.environ, PYTHONPATH=path, **ALLOCATOR_ENV)
+        if not self.started:  # a plugin: on one core, as the pipelines are timed
+            from pipeline.backends.plugin import ONE_THREAD_ENV
+
+            env.update(ONE_THREAD_ENV)
         self.process = subprocess.Popen(
             [sys.executable, "-m", "pipeline.backends.isolated", str(child.fileno()),
              str(os.getpid())],
@@ -176,8 +180,11 @@ def _serve(conn: Connection) -> None:
     while True:
         try:
             message = conn.recv()
-            if isinstance(message, str):
+            if isinstance(message, str):  # a plugin's start
                 try:
+                    from pipeline.backends.plugin import one_thread
+
+                    one_thread()
                     get_backend(message)
                     conn.send(("ok", None))
                 except ValueError as exc:

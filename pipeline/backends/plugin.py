@@ -202,6 +202,18 @@ def load() -> None:
     """A plugin is resolved when its row is built (:func:`plugin_backend`): nothing to do."""
 
 
+#: A plugin's worker runs on one core, as the project's pipelines are timed (``compare``
+#: measures single-core speed): the thread pools of the common numeric libraries, one thread.
+ONE_THREAD_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+
+
+def one_thread() -> None:
+    """OpenCV on one thread in a plugin's worker, before the plugin loads (it may change it)."""
+    import cv2
+
+    cv2.setNumThreads(1)
+
+
 def timeout_s() -> float:
     """A detector plugin's time limit per image (s): :data:`TIMEOUT_ENV`, else
     :data:`DEFAULT_TIMEOUT_S`; BackendError on a value that is not a number > 0."""
