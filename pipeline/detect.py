@@ -62,7 +62,7 @@ class DetectorConfig:
     #: ``plugin:SPEC``, :mod:`pipeline.backends.plugin`).
     backend: str = "opencv"
     #: The curve that encoded the image, for ``"lines"`` (:data:`pipeline.refine.TRANSFERS`).
-    transfer: str = "srgb"
+    transfer: str = "auto"
 
     def __post_init__(self) -> None:
         get_backend(self.backend)  # ValueError naming the choices, or why a plugin is refused

@@ -304,12 +304,13 @@ def test_compare_runs_plugins_results_and_branch_finders_beside_the_pipelines(
     )  # fmt: skip
     out = tmp_path / "report"
     summary = run_compare(
-        dataset, [parse_method(n) for n in names], out, sweep, speed_frames=2, speed_seconds=0.0
+        dataset, [parse_method(n) for n in names], out, sweep, speed_frames=2, speed_rounds=3
     ).set_index("pipeline")
     assert summary.index.tolist() == names
     naive, plugin = summary.loc["naive"], summary.loc[names[1]]
     # plain OpenCV as a plugin is naive's detector: the same markers, the same corners
     assert plugin["fps"] > 0 and plugin["recall"] == naive["recall"] > 0.9
+    assert 0 < plugin["fps_min"] <= plugin["fps"] <= plugin["fps_max"]  # in the shared rounds
     assert plugin["corner_err_px"] == pytest.approx(naive["corner_err_px"], abs=1e-6)
     assert "raised ZeroDivisionError: planted" in summary.loc[names[2], "failed"]
     assert np.isnan(summary.loc[names[2], "recall"])
@@ -319,7 +320,11 @@ def test_compare_runs_plugins_results_and_branch_finders_beside_the_pipelines(
     assert np.isnan(finder["fps"]) and np.isfinite(finder["correct_rate"])
     sweeps = pd.read_csv(out / "sweeps.csv")
     assert set(sweeps["pipeline"]) == {"naive", names[1]}  # the failed one left out
+    rounds = pd.read_csv(out / "speed_rounds.csv")  # it failed while timed: out of the rounds
+    assert set(rounds["pipeline"]) == {"naive", names[1]} and len(rounds) == 2 * 3
     leads = pd.read_csv(out / "leaders.csv").set_index("measure")
+    assert leads.loc["fps", "leader"] in ("naive", names[1])  # untimed: never a rival
+    assert set(str(leads.loc["fps", "spread_rivals"]).split(", ")) <= {"naive", names[1], "nan"}
     assert leads.loc["recall", "best_peer"] == names[3]  # outside methods are peers
     report = (out / "report.md").read_text()
     assert f"- {names[2]}: failed, no measure: " in report

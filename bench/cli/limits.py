@@ -278,3 +278,29 @@ def check_full_frame_cells(count: int, config) -> None:
     per_cell = FULL_FRAME_RENDER_S + config.images * FULL_FRAME_IMAGE_S
     what = f"{count} full-frame cells x up to {config.images} images"
     check_time("full_frame_cells", count * per_cell, what, count, per_cell)
+
+
+#: ``compare --speed-frames``: timed frames of the dataset, held in memory at once.
+MAX_SPEED_FRAMES = 2000
+#: ``--speed-rounds`` (``bench pipeline --rounds``): a median and a spread need 3 at least.
+SPEED_ROUNDS_RANGE = (3, 100)
+
+
+def check_speed_rounds(field: str, rounds: int) -> None:
+    low, high = SPEED_ROUNDS_RANGE
+    if not low <= rounds <= high:
+        raise FieldError(
+            field, f"{rounds}: allowed range is {low}..{high} (a median and a spread need 3)"
+        )
+
+
+def check_speed_frames(field: str, frames: int, lens=None) -> None:
+    """Timed frames in range and, with the dataset's ``lens``, in memory with each run's
+    lead-in frame (:data:`bench.evaluate.timing.RUN_FRAMES` timed frames a run)."""
+    from bench.evaluate.timing import RUN_FRAMES
+
+    if not 1 <= frames <= MAX_SPEED_FRAMES:
+        raise FieldError(field, f"{frames}: allowed range is 1..{MAX_SPEED_FRAMES}")
+    if lens is not None:
+        held = frames + math.ceil(frames / RUN_FRAMES)
+        check_frames(field, held, lens.width_px, lens.height_px, "frames (lead-ins included)")

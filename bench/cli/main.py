@@ -25,18 +25,15 @@ from bench.cli.args import (
     seed,
 )
 from bench.cli.camera import add_camera_parser
-from bench.cli.dataset import OPTION_OF_FIELD as DATASET_OPTION_OF_FIELD
-from bench.cli.dataset import add_dataset_options, cmd_bench_dataset, cmd_dataset
-from bench.cli.evaluate import (
+from bench.cli.compare import (
     add_bench_pipeline_options,
     add_compare_options,
-    add_detect_options,
-    add_score_options,
     cmd_bench_pipeline,
     cmd_compare,
-    cmd_detect,
-    cmd_score,
 )
+from bench.cli.dataset import OPTION_OF_FIELD as DATASET_OPTION_OF_FIELD
+from bench.cli.dataset import add_dataset_options, cmd_bench_dataset, cmd_dataset
+from bench.cli.evaluate import add_detect_options, add_score_options, cmd_detect, cmd_score
 from bench.cli.exits import bug_report, end_quietly, stdout_closed
 from bench.cli.images import add_images_parser
 from bench.cli.ladder import add_ladder_parser

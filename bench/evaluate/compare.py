@@ -2,8 +2,11 @@
 
 Per variant, measured in the same run on this machine:
 
-* **speed**: frames/s of detection and pose on full 2592 x 1944 frames with 13 markers, one
-  OpenCV thread (:mod:`bench.evaluate.speed`, the same frames for every variant);
+* **speed**: frames/s of detection and pose on frames of the dataset compared, one OpenCV
+  thread: runs of consecutive frames spread evenly over its samples, the variants alternating,
+  in repeated rounds; the median over rounds and the slowest and fastest round
+  (:mod:`bench.evaluate.timing`, ``docs/speed.md``; the frames in ``speed_frames.csv``, each
+  round in ``speed_rounds.csv``);
 * **accuracy on the dataset**: :func:`bench.score.score_dataset` on every sample (branch outcome
   with the none-twin threshold, marker recall, deflection, corner and pose errors);
 * **failure boundaries**: detection recall and pose error against angular position, marker tilt,
@@ -13,13 +16,14 @@ Per variant, measured in the same run on this machine:
   lens' uncertain blur (:mod:`bench.evaluate.band`).
 
 Peer detectors (the ``locus`` and ``apriltag`` presets, any ``/detector=`` variant) and detector
-plugins (``plugin:SPEC``) run like every other pipeline; results files (``results:PATH``) and
-branch finders (``branch-plugin:SPEC``) are scored on the dataset beside them
-(:mod:`bench.evaluate.outside`). The report opens with who leads on each measure, peers and
+plugins (``plugin:SPEC``) run, and are timed, like every other pipeline; results files
+(``results:PATH``) and branch finders (``branch-plugin:SPEC``) are scored on the dataset beside
+them (:mod:`bench.evaluate.outside`). The report opens with who leads on each measure, peers and
 outside methods beside the project's pipelines (:mod:`bench.evaluate.leaders`, also
 ``leaders.csv``). A method whose backend fails (:class:`pipeline.backends.BackendError`: a
 plugin that raises, answers outside its contract, or crashes or hangs on image after image)
-keeps a row saying why (``failed``), with no measure, and the others go on.
+keeps a row saying why (``failed``), with no measure, and the others go on; one that fails
+while timed drops out of the timing rounds and is not scored.
 
 The report (``report.md`` with PNG charts beside it) opens without a server. Per-sample outputs
 (detections tables and plots: bulk data) go to ``<dataset>/scores/<variant>/``, not beside the
@@ -35,41 +39,37 @@ import time
 from pathlib import Path
 
 import cv2
-import matplotlib
+import pandas as pd
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-import pandas as pd  # noqa: E402
-
-from bench.common.atomic import atomic_path, write_bytes  # noqa: E402
-from bench.common.executor import TaskPool, effective_executor  # noqa: E402
-from bench.common.manifest import (  # noqa: E402
+from bench.common.atomic import atomic_path, write_bytes
+from bench.common.executor import TaskPool, effective_executor
+from bench.common.manifest import (
     RunClock,
     build_manifest,
     claim,
     hash_files,
     write_manifest,
 )
-from bench.evaluate.compare_report import OWN_POSE, render_report  # noqa: E402
-from bench.evaluate.leaders import is_peer, leaders  # noqa: E402
-from bench.evaluate.outside import Method, OutsideMethod, prepare, score_outside  # noqa: E402
-from bench.evaluate.speed import (  # noqa: E402
-    SPEED_SAMPLE,
-    full_frames,
+from bench.evaluate.compare_report import OWN_POSE, render_report
+from bench.evaluate.leaders import leaders
+from bench.evaluate.outside import Method, OutsideMethod, prepare, score_outside
+from bench.evaluate.pareto import plot_pareto
+from bench.evaluate.timing import (
+    ROUND_COLUMNS,
+    RUN_FRAMES,
+    SPEED_COLUMNS,
+    SPEED_FRAMES,
+    SPEED_ROUNDS,
+    dataset_runs,
     one_opencv_thread,
-    time_pipeline,
+    runs_table,
+    speed_figures,
+    speed_of,
+    time_pipelines,
 )
-from pipeline.backends import BackendError  # noqa: E402
-from pipeline.presets import PipelineConfig  # noqa: E402
-from renderers.variant import init_worker  # noqa: E402
-
-#: Accuracy measures on the dataset: column, label, whether higher is better.
-ACCURACY = (
-    ("correct_rate", "branch outcome correct (fraction of samples)", True),
-    ("recall", "marker recall", True),
-    ("deflection_err_mm", "deflection error (mm, median)", False),
-)
+from pipeline.backends import BackendError
+from pipeline.presets import PipelineConfig
+from renderers.variant import init_worker
 
 
 def summarize(name: str, table: pd.DataFrame) -> dict:
@@ -106,72 +106,7 @@ def failed_row(name: str, samples: int, reason: str) -> dict:
     """The summary row of a method whose backend failed: its reason, no measure."""
     nan = float("nan")
     return {"pipeline": name, "samples": samples, "refused_samples": 0, "correct_rate": nan,
-            "recall": nan, "fps": nan, "failed": reason}  # fmt: skip
-
-
-def pareto_front(speed: np.ndarray, accuracy: np.ndarray, higher_better: bool) -> np.ndarray:
-    """(N,) bool: points no other point beats in both speed and accuracy (ties do not beat).
-
-    A point without an accuracy (NaN: its pipeline refused every sample) or without a speed
-    (an untimed results file) is not on the front and beats no other."""
-    acc = np.asarray(accuracy, float) * (1 if higher_better else -1)
-    speed = np.asarray(speed, float)
-    front = np.isfinite(acc) & np.isfinite(speed)
-    for i in range(len(speed)):
-        better = (speed >= speed[i]) & (acc >= acc[i]) & ((speed > speed[i]) | (acc > acc[i]))
-        front[i] &= not better.any()
-    return front
-
-
-def plot_pareto(summary: pd.DataFrame, path: Path) -> None:
-    """Accuracy against speed, one panel per accuracy measure, the Pareto front drawn.
-
-    The front is computed over every pipeline, peers included; peers are hollow diamonds, the
-    project's pipelines filled circles (red on the front, grey behind it). A method with an
-    accuracy but no speed (an untimed results file, a branch finder) is a dotted line at its
-    accuracy, named "accuracy only". A pipeline without a value for a measure (it refused
-    every sample, or failed) cannot be placed: the panel's title names it, so no pipeline
-    drops out of the chart unsaid."""
-    fig, axes = plt.subplots(1, len(ACCURACY), figsize=(5 * len(ACCURACY), 4), dpi=110)
-    speed = summary["fps"].to_numpy()
-    peer = summary["pipeline"].map(is_peer).to_numpy(bool)
-    for ax, (column, label, higher) in zip(axes, ACCURACY, strict=True):
-        acc = summary[column].to_numpy(float)
-        untimed = np.isfinite(acc) & ~np.isfinite(speed)
-        placed = np.isfinite(acc) & ~untimed
-        front = pareto_front(speed, acc, higher)
-        for mine, where, colour in (
-            (placed & ~front, "behind the front", "#9e9e9e"),
-            (front, "Pareto front", "#d62728"),
-        ):
-            ax.scatter(speed[mine & ~peer], acc[mine & ~peer], c=colour, s=45, label=where)
-            ax.scatter(speed[mine & peer], acc[mine & peer], marker="D", s=55, facecolors="none",
-                       edgecolors=colour, linewidths=1.6, label=f"peer, {where}")  # fmt: skip
-        order = np.argsort(speed[front])
-        ax.plot(speed[front][order], acc[front][order], "-", c="#d62728", lw=1)
-        names = summary["pipeline"].to_numpy()
-        for x, y, name in zip(speed[placed], acc[placed], names[placed], strict=True):
-            ax.annotate(name, (x, y), fontsize=7, xytext=(4, 3), textcoords="offset points")
-        for y, name in zip(acc[untimed], names[untimed], strict=True):
-            ax.axhline(y, ls=":", c="#0072b2", lw=1.2)
-            ax.annotate(f"{name} (accuracy only)", (0.01, y), xycoords=("axes fraction", "data"),
-                        fontsize=7, xytext=(0, 3), textcoords="offset points")  # fmt: skip
-        if not (placed | untimed).all():
-            ax.set_title(f"no value: {', '.join(names[~(placed | untimed)])}", fontsize=8)
-        if placed.any():  # an empty panel has no range to log-scale
-            ax.set_xscale("log")
-        ax.set_xlabel("frames/s, full 2592x1944 frames, one core")
-        ax.set_ylabel(label + ("" if higher else ", lower is better"))
-        ax.grid(alpha=0.3)
-    handles, labels = axes[0].get_legend_handles_labels()
-    shown = [(h, t) for h, t in zip(handles, labels, strict=True) if len(h.get_offsets())]
-    if shown:  # none when every pipeline refused every sample
-        axes[0].legend(*zip(*shown, strict=True), fontsize=7)
-    fig.suptitle("accuracy against speed (hollow diamonds: peer detectors)", fontsize=10)
-    fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png")
-    plt.close(fig)
+            "recall": nan, **dict.fromkeys(SPEED_COLUMNS, nan), "failed": reason}  # fmt: skip
 
 
 def run_compare(
@@ -179,8 +114,8 @@ def run_compare(
     pipelines: list[Method],
     out_dir: Path,
     sweep=None,
-    speed_frames: int = 30,
-    speed_seconds: float = 2.0,
+    speed_frames: int = SPEED_FRAMES,
+    speed_rounds: int = SPEED_ROUNDS,
     variant: str | None = None,
     workers: int = 1,
     executor: str = "pool",
@@ -189,16 +124,19 @@ def run_compare(
     """Measure every variant (speed, dataset accuracy, sweeps) and every outside method
     (:mod:`bench.evaluate.outside`: dataset accuracy) and write the report.
 
-    Speed: the best of repeats over ``speed_frames`` full frames, run for ``speed_seconds``.
+    Speed: up to ``speed_frames`` frames of the dataset timed, the pipelines (detector
+    plugins too) alternating, ``speed_rounds`` rounds (:mod:`bench.evaluate.timing`), after
+    the dataset is verified; outside methods are not timed (a results file's own times are
+    its speed, else NaN: accuracy only).
     Before anything is written a peer that is not installed
     (:class:`pipeline.backends.BackendUnavailableError`) or a pipeline whose backend cannot
     detect the sweeps' or the dataset's family (ValueError) is refused; then the report
     folder and every variant's score folder are claimed (ValueError if another command's),
     the dataset is verified, once (DatasetIntegrityError naming the file), and the results
     files are read and the branch finders resolved (ValueError); ``manifest.json`` is
-    written last. A method whose backend fails (BackendError) gets a ``failed`` row and is
-    left out of the sweeps. Scoring and sweeps run their tasks on ``executor``
-    (:class:`~bench.common.executor.TaskPool`), recorded in the manifest.
+    written last. A method whose backend fails (BackendError), while timed or scored, gets a
+    ``failed`` row and is left out of the sweeps. Scoring and sweeps run their tasks on
+    ``executor`` (:class:`~bench.common.executor.TaskPool`), recorded in the manifest.
     """
     from bench.dataset.verify import verify_dataset
     from bench.evaluate.band import band_end_boundaries, sweep_band_values
@@ -212,12 +150,12 @@ def run_compare(
     names = [p.name for p in pipelines]
     if len(set(names)) != len(names) or not names:
         raise ValueError(f"--pipelines: need distinct names, got {names}")
-    timed = [p for p in pipelines if isinstance(p, PipelineConfig)]
-    if timed:  # a missing peer or a family it cannot detect: refused now
-        sweep_pipelines(timed, sweep)
+    own = [p for p in pipelines if isinstance(p, PipelineConfig)]  # detected, timed, swept
+    if own:  # a missing peer or a family it cannot detect: refused now
+        sweep_pipelines(own, sweep)
     family = dataset_family(dataset)
-    for pipeline in timed:
-        for_family(pipeline, family)  # the dataset's family too, before any claim
+    # the dataset's family too, before any claim; timed as they score, keyed by name
+    detecting = {p.name: for_family(p, family) for p in own}
     clock = RunClock()
     claim(out_dir, "compare")
     for pipeline in pipelines:
@@ -226,31 +164,40 @@ def run_compare(
     prepared = prepare(pipelines, verified)  # results files read, branch finders resolved
     chosen = init_worker(variant)
     t_start = time.perf_counter()
+    runs = dataset_runs(dataset, speed_frames) if detecting else []
+    rounds = pd.DataFrame(columns=list(ROUND_COLUMNS))  # none when only outside methods
+    failed: dict[str, str] = {}  # a method's failure, timed or scored: the others go on
+    if detecting:
+        timing = time_pipelines(runs, detecting, speed_rounds)
+        rounds, failed = timing.rounds, dict(timing.failed)
+    timed = runs_table(runs)
+    del runs
+    speed = speed_figures(rounds)
     # one pool scores every pipeline: a Dask cluster or worker processes start once
     pool = TaskPool(workers, executor=executor, scheduler=scheduler)
-    failed: dict[str, str] = {}
     with pool, one_opencv_thread():
-        images = full_frames(SPEED_SAMPLE, speed_frames)[0][1.0] if timed else []
         rows, tables = [], {}
         for method in pipelines:
             scores = dataset / "scores" / method.folder_name
             try:
+                if method.name in failed:  # while timed: not scored
+                    raise BackendError(failed[method.name])
                 if isinstance(method, OutsideMethod):
                     table, fps = score_outside(
                         method, prepared.get(method.name), dataset, verified, pool
                     )
+                    speeds = {**dict.fromkeys(SPEED_COLUMNS, float("nan")), "fps": fps}
                 else:
-                    fps, _ = time_pipeline(images, SPEED_SAMPLE, method, speed_seconds)
                     table = score_dataset(dataset, method, scores, verified, pool=pool)
-            except BackendError as exc:  # that method's failure: the others go on
+                    speeds = speed_of(speed, method.name)
+            except BackendError as exc:
                 failed[method.name] = " ".join(str(exc).split())
                 rows.append(failed_row(method.name, len(verified.records), failed[method.name]))
                 continue
             tables[method.name] = table
-            rows.append({**summarize(method.name, table), "fps": fps})
-        del images
+            rows.append({**summarize(method.name, table), **speeds})
     summary = pd.DataFrame(rows)
-    swept = [p for p in timed if p.name not in failed]
+    swept = [p for p in own if p.name not in failed]
     pool_options = {"workers": workers, "executor": executor, "scheduler": scheduler}
     t_sweeps = time.perf_counter()
     sweeps = run_sweeps(swept, sweep, variant, **pool_options) if swept else pd.DataFrame()
@@ -268,6 +215,7 @@ def run_compare(
     out_dir.mkdir(parents=True, exist_ok=True)
     written = write_sweeps(out_dir, sweeps, sweep, swept) if swept else []
     frames = [("summary", summary), ("boundaries", edges), ("leaders", leads)]
+    frames += [("speed_frames", timed), ("speed_rounds", rounds)]
     if band_tables:
         frames += [
             ("sweeps_band_ends", pd.concat(band_tables.values(), ignore_index=True)),
@@ -287,7 +235,12 @@ def run_compare(
         "machine": platform.processor() or platform.machine(),
         "opencv": cv2.__version__,
         "wall_s": time.perf_counter() - t_start,
-        "speed_frames": speed_frames,
+        "speed": {
+            "frames": int(timed["timed"].sum()) if len(rounds) else 0,  # 0: nothing timed
+            "runs": int(timed["run"].nunique()),
+            "samples": int(timed["sample_id"].nunique()),
+            "rounds": speed_rounds,
+        },
         "dataset_psf_scale": dataset_psf_scale(dataset),
         "band": None
         if not band_tables
@@ -309,12 +262,13 @@ def run_compare(
     written += [out_dir / "grids" / n for names in grids.values() for n in names]
     config = {
         "dataset": str(dataset),
-        "pipelines": [p.to_json() for p in timed],
+        "pipelines": [p.to_json() for p in own],
         "outside": [m.name for m in pipelines if isinstance(m, OutsideMethod)],
         "failed": failed,
         "sweep": sweep.to_json(),  # also in sweep_config.json, beside the sweep table
         "speed_frames": speed_frames,
-        "speed_seconds": speed_seconds,
+        "speed_rounds": speed_rounds,
+        "speed_run_frames": RUN_FRAMES,
     }
     record = build_manifest(
         "compare",

@@ -7,7 +7,7 @@ import json
 import pandas as pd
 
 from bench.evaluate.band import band_section
-from bench.evaluate.leaders import is_peer, leader_lines
+from bench.evaluate.leaders import is_peer, leader_lines, spread_verdict
 
 #: The backend's own pose errors in the scores (NaN for OpenCV, which has none).
 OWN_POSE = ("own_rot_err_deg", "own_trans_err_mm")
@@ -36,6 +36,8 @@ def render_report(
     columns = [
         "pipeline",
         "fps",
+        "fps_min",
+        "fps_max",
         "correct_rate",
         "recall",
         "deflection_err_mm",
@@ -51,8 +53,8 @@ def render_report(
     lines = [
         "# Pipeline comparison",
         "",
-        f"Dataset `{meta['dataset']}` ({meta['samples']} samples); speed on "
-        f"{meta['speed_frames']} full 2592x1944 frames with 13 markers, one OpenCV thread; "
+        f"Dataset `{meta['dataset']}` ({meta['samples']} samples); speed on its own frames "
+        "(below), one OpenCV thread; "
         f"{meta['cpu_count']} cores, OpenCV {meta['opencv']}, Mitsuba variant {meta['variant']}; "
         f"the whole comparison took {meta['wall_s']:.0f} s.",
         "",
@@ -69,6 +71,7 @@ def render_report(
         *band_section(leads, meta),
         "## Accuracy against speed",
         "",
+        *speed_section(leads, meta["speed"]),
         "![accuracy against speed](pareto.png)",
         "",
         _markdown_table(summary[columns]),
@@ -93,6 +96,28 @@ def render_report(
             )
         lines += [f"![{name} {g}](grids/{g})" for g in grids.get(name, [])] + [""]
     return "\n".join(lines) + "\n"
+
+
+def speed_section(leads: pd.DataFrame, speed: dict) -> list[str]:
+    """How frames/s was measured, and whether the speed lead is within the spread."""
+    if not speed["frames"]:  # only results files and branch finders, or every pipeline failed
+        return ["Frames/s: no pipeline was timed here; every method is accuracy only.", ""]
+    lines = [
+        f"Frames/s: {speed['frames']} frames of this dataset, in {speed['runs']} runs of "
+        f"consecutive frames from {speed['samples']} samples (`speed_frames.csv`), each after an "
+        "untimed lead-in frame; the pipelines alternate on every run, each round starting one "
+        f"pipeline later, over {speed['rounds']} rounds (`speed_rounds.csv`), so a change in the "
+        "machine's load falls on all of them alike. `fps` is the median over rounds, `fps_min` "
+        "and `fps_max` the slowest and fastest round (the chart's bars). A method not timed in "
+        "the rounds (a results file, with its own times or none; a branch finder) is not a "
+        "rival for the speed lead.",
+        "",
+    ]
+    fps = leads[leads["measure"] == "fps"]
+    if len(fps) and isinstance(fps["lead_within_spread"].iloc[0], bool):
+        row = next(fps.itertuples(index=False))
+        lines += [f"The speed lead of {row.leader}: {spread_verdict(row)}.", ""]
+    return lines
 
 
 def refused_lines(summary: pd.DataFrame) -> list[str]:
