@@ -135,7 +135,7 @@ def _check_the_band(out, sweep, sweeps: pd.DataFrame, pipelines: int) -> None:
 def test_the_sweeps_use_the_datasets_camera_unless_told(rendered_pair, tmp_path):
     import pytest
 
-    from bench.cli.evaluate import _sweep_camera
+    from bench.cli.compare import _sweep_camera
     from bench.cli.main import main
 
     assert _sweep_camera(None, rendered_pair).name == "ideal"  # what the pair was rendered with
@@ -303,7 +303,7 @@ def test_compare_refuses_a_missing_peer_in_one_line(monkeypatch, tmp_path, capsy
 
 
 def test_without_peers_the_default_pipelines_are_the_opencv_presets(monkeypatch):
-    from bench.cli.evaluate import _installed_presets
+    from bench.cli.compare import _installed_presets
 
     _without_peers(monkeypatch)
     names = [p.name for p in _installed_presets()]
@@ -365,7 +365,8 @@ def _all_refused(samples: int = 2) -> pd.DataFrame:
 def test_a_pipeline_that_refuses_every_sample_keeps_its_row(tmp_path):
     """No rate, no error (NaN), the counts kept; off the Pareto front, in the chart's and the
     report's words, leading on nothing but its speed."""
-    from bench.evaluate.compare import refused_lines, summarize
+    from bench.evaluate.compare import summarize
+    from bench.evaluate.compare_report import refused_lines
     from bench.evaluate.leaders import leaders
     from bench.evaluate.pareto import plot_pareto
 

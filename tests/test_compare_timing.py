@@ -151,6 +151,34 @@ def test_pipelines_alternate_over_repeated_rounds(monkeypatch):
     assert [len(d) for d in result.detections.values()] == [2, 2, 2]  # first round, per run
 
 
+def test_a_pipeline_that_fails_while_timed_drops_out_and_the_others_go_on(monkeypatch):
+    """A plugin's BackendError in round 1: no row of it (no speed, not made up), why in
+    ``failed``; the others keep every round, alternating among themselves."""
+    from pipeline.backends import BackendError
+
+    clock, calls = _Clock(), []
+    fake = _fake_track(clock, calls)
+    pipelines, failing = _pipelines(), "fast"
+    key = pipelines[failing].detector.backend + "|" + pipelines[failing].search.mode
+
+    def track(frames, camera, markers, detector, search, pose_method):
+        if detector.backend + "|" + search.mode == key and len(calls) >= 6:  # after round 0
+            calls.append("failed")
+            raise BackendError("detector plugin:x: raised ZeroDivisionError: planted")
+        return fake(frames, camera, markers, detector, search, pose_method)
+
+    monkeypatch.setattr(timing, "perf_counter", lambda: clock.now)
+    monkeypatch.setattr(timing, "track", track)
+    result = time_pipelines([_run("a", 5), _run("b", 3)], pipelines, rounds=4)
+    assert result.failed == {failing: "detector plugin:x: raised ZeroDivisionError: planted"}
+    assert calls.count("failed") == 1  # not asked again after it failed
+    rounds = result.rounds
+    assert failing not in set(rounds["pipeline"]) and failing not in result.detections
+    others = [n for n in pipelines if n != failing]
+    assert sorted(rounds["pipeline"].value_counts().items()) == sorted((n, 4) for n in others)
+    assert np.isnan(speed_of(speed_figures(rounds), failing)["fps"])
+
+
 def test_median_and_spread_are_consistent():
     rows = [
         (r, 0, name, 10, 10 / f, f)
@@ -200,7 +228,7 @@ def _timed_summary(paper_max: float) -> pd.DataFrame:
 @pytest.mark.parametrize(("paper_max", "within", "rivals"), [(96.0, True, "paper"),
                                                              (90.0, False, "")])  # fmt: skip
 def test_leaders_say_when_the_speed_lead_is_within_the_spread(tmp_path, paper_max, within, rivals):
-    from bench.evaluate.compare import speed_section
+    from bench.evaluate.compare_report import speed_section
     from bench.evaluate.leaders import leader_lines, leaders
 
     leads = leaders(_timed_summary(paper_max))
@@ -234,14 +262,38 @@ def test_a_tie_or_a_single_timed_pipeline():
     assert fps["leader"] == "fast" and fps["lead_within_spread"] is None
 
 
-def test_a_pipeline_without_a_speed_is_off_the_front_and_named(tmp_path):
+def test_an_untimed_method_is_never_a_rival_for_the_speed_lead():
+    """theirs (a results file's own speed, no spread) faster than every round: it leads on its
+    median, not judged; below the leader it is no rival, whatever its value."""
+    from bench.evaluate.leaders import leaders
+
+    fast = _timed_summary(90.0).assign(fps=[80.0, 100.0, float("nan"), 500.0])
+    fps = leaders(fast).set_index("measure").loc["fps"]
+    assert fps["leader"] == "theirs" and fps["lead_within_spread"] is None
+    close = _timed_summary(90.0).assign(fps=[80.0, 100.0, float("nan"), 99.0])
+    fps = leaders(close).set_index("measure").loc["fps"]
+    assert fps["leader"] == "fast" and fps["lead_within_spread"] is False
+    assert fps["spread_rivals"] == ""
+
+
+def test_a_pipeline_without_a_speed_is_off_the_front_and_named(tmp_path, monkeypatch):
+    import matplotlib.pyplot as plt
+
+    from bench.evaluate import pareto
     from bench.evaluate.pareto import pareto_front, plot_pareto
 
     speed = np.array([100.0, np.nan, 50.0])
     assert pareto_front(speed, np.array([0.9, 1.0, 0.95]), True).tolist() == [True, False, True]
     summary = _timed_summary(96.0).assign(correct_rate=0.5, deflection_err_mm=1.0)
+    monkeypatch.setattr(pareto.plt, "close", lambda fig: None)  # keep the figure to read it
     plot_pareto(summary, tmp_path / "pareto.png")
     assert (tmp_path / "pareto.png").stat().st_size > 1000
+    for ax in plt.gcf().axes:  # locus, untimed: a dotted line at its accuracy, labelled
+        dotted = [line for line in ax.get_lines() if line.get_linestyle() == ":"]
+        assert len(dotted) == 1
+        texts = [t.get_text() for t in ax.texts]
+        assert "locus (accuracy only)" in texts and "locus" not in texts
+    plt.close("all")
 
 
 @pytest.mark.parametrize(

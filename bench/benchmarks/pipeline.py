@@ -41,7 +41,7 @@ from bench.evaluate.timing import (
     time_pipelines,
     track_run,
 )
-from pipeline.backends import require
+from pipeline.backends import BackendError, require
 from pipeline.presets import PipelineConfig
 from renderers.variant import init_worker
 
@@ -88,6 +88,8 @@ def bench_pipeline(
 
     run = full_run(config, images)
     timing = time_pipelines([run], {p.name: p for p in pipelines}, rounds)
+    if timing.failed:  # a ratio needs every pipeline's speed: the failure stops the benchmark
+        raise BackendError("; ".join(timing.failed.values()))
     speed = speed_figures(timing.rounds)
     rows, at_ends = [], {end: [] for end in ends}
     with one_opencv_thread():

@@ -1,5 +1,6 @@
 """How a command ends when it does not end by itself: the short bug report of an internal
-error, one line for a failure of the environment (a full disk, a permission, a name too long),
+error (or one line for a detector backend's own failure, a plugin's: not the project's bug), one
+line for a failure of the environment (a full disk, a permission, a name too long),
 and a quiet end when the reader of stdout goes away early (``| head -1``)."""
 
 from __future__ import annotations
@@ -18,7 +19,13 @@ STDOUT_CLOSED = 128 + signal.SIGPIPE
 
 
 def bug_report(command: str, exc: BaseException) -> str:
-    """An internal error in a few lines: what, a request, and the innermost frames."""
+    """An internal error in a few lines: what, a request, and the innermost frames; a
+    backend's failure (:class:`pipeline.backends.BackendError`, a plugin that raised or
+    answered outside its contract) in one line naming it, with no request to report it."""
+    from pipeline.backends import BackendError
+
+    if isinstance(exc, BackendError):
+        return f"whiskerbench {command}: error: {' '.join(str(exc).split())}"
     frames = traceback.extract_tb(exc.__traceback__)[-BUG_REPORT_FRAMES:]
     detail = str(exc).splitlines()[0] if str(exc) else ""
     return "\n".join(

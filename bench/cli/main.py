@@ -26,18 +26,15 @@ from bench.cli.args import (
     seed,
 )
 from bench.cli.camera import add_camera_parser
-from bench.cli.dataset import OPTION_OF_FIELD as DATASET_OPTION_OF_FIELD
-from bench.cli.dataset import add_dataset_options, cmd_bench_dataset, cmd_dataset
-from bench.cli.evaluate import (
+from bench.cli.compare import (
     add_bench_pipeline_options,
     add_compare_options,
-    add_detect_options,
-    add_score_options,
     cmd_bench_pipeline,
     cmd_compare,
-    cmd_detect,
-    cmd_score,
 )
+from bench.cli.dataset import OPTION_OF_FIELD as DATASET_OPTION_OF_FIELD
+from bench.cli.dataset import add_dataset_options, cmd_bench_dataset, cmd_dataset
+from bench.cli.evaluate import add_detect_options, add_score_options, cmd_detect, cmd_score
 from bench.cli.exits import (
     bug_report,
     end_quietly,
@@ -61,7 +58,7 @@ from bench.study.config import (
     detector_from_option,
     profile_from_option,
 )
-from pipeline.backends import BACKENDS
+from pipeline.backends import BACKENDS, backend_name
 from scenes.profile import profile_path
 from scenes.validation import FieldError
 
@@ -177,10 +174,11 @@ def _add_study_options(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--detector",
-        choices=tuple(BACKENDS),
+        type=backend_name,
         default="opencv",
-        help="which library finds the markers: opencv (its subpix corners), or a peer with its "
-        "own corners, locus or apriltag (pip install -e '.[peers]') (default opencv)",
+        help=f"which library finds the markers: {', '.join(BACKENDS)} (the peers: pip install "
+        "-e '.[peers]'), or a plugin: module:function, path/file.py:function or an entry "
+        "point's name (docs/plugins.md) (default opencv, its subpix corners)",
     )
     p.add_argument(
         "--family",
@@ -256,7 +254,8 @@ def default_out(config: StudyConfig, quick: bool) -> Path:
             json.dumps(plain.to_json(), default=str, sort_keys=True).encode()
         ).hexdigest()[:8]
         name = f"custom-{digest}"
-    extra = [config.detector.backend] if config.detector.backend != "opencv" else []
+    backend = config.detector.backend.replace("/", "~")  # a plugin's file: no subfolder
+    extra = [backend] if backend != "opencv" else []
     extra += [config.dictionary] if config.dictionary != default.dictionary else []
     return RUNS / "detectability" / "-".join([name, *extra])
 

@@ -15,9 +15,15 @@ Per variant, measured in the same run on this machine:
   base point's PSF at each end of the band, so the report can say which leads hold across the
   lens' uncertain blur (:mod:`bench.evaluate.band`).
 
-Peer detectors (the ``locus`` and ``apriltag`` presets, any ``/detector=`` variant) run like
-every other pipeline; the report opens with who leads on each measure, peers beside the
-project's pipelines (:mod:`bench.evaluate.leaders`, also ``leaders.csv``).
+Peer detectors (the ``locus`` and ``apriltag`` presets, any ``/detector=`` variant) and detector
+plugins (``plugin:SPEC``) run, and are timed, like every other pipeline; results files
+(``results:PATH``) and branch finders (``branch-plugin:SPEC``) are scored on the dataset beside
+them (:mod:`bench.evaluate.outside`). The report opens with who leads on each measure, peers and
+outside methods beside the project's pipelines (:mod:`bench.evaluate.leaders`, also
+``leaders.csv``). A method whose backend fails (:class:`pipeline.backends.BackendError`: a
+plugin that raises, answers outside its contract, or crashes or hangs on image after image)
+keeps a row saying why (``failed``), with no measure, and the others go on; one that fails
+while timed drops out of the timing rounds and is not scored.
 
 The report (``report.md`` with PNG charts beside it) opens without a server. Per-sample outputs
 (detections tables and plots: bulk data) go to ``<dataset>/scores/<variant>/``, not beside the
@@ -26,7 +32,6 @@ report.
 
 from __future__ import annotations
 
-import json
 import os
 import platform
 import shutil
@@ -45,11 +50,14 @@ from bench.common.manifest import (
     hash_files,
     write_manifest,
 )
-from bench.evaluate.band import band_section
-from bench.evaluate.leaders import is_peer, leader_lines, leaders, spread_verdict
+from bench.evaluate.compare_report import OWN_POSE, render_report
+from bench.evaluate.leaders import leaders
+from bench.evaluate.outside import Method, OutsideMethod, prepare, score_outside
 from bench.evaluate.pareto import plot_pareto
 from bench.evaluate.timing import (
+    ROUND_COLUMNS,
     RUN_FRAMES,
+    SPEED_COLUMNS,
     SPEED_FRAMES,
     SPEED_ROUNDS,
     dataset_runs,
@@ -59,11 +67,9 @@ from bench.evaluate.timing import (
     speed_of,
     time_pipelines,
 )
+from pipeline.backends import BackendError
 from pipeline.presets import PipelineConfig
 from renderers.variant import init_worker
-
-#: The backend's own pose errors in the scores (NaN for OpenCV, which has none).
-OWN_POSE = ("own_rot_err_deg", "own_trans_err_mm")
 
 
 def summarize(name: str, table: pd.DataFrame) -> dict:
@@ -92,12 +98,20 @@ def summarize(name: str, table: pd.DataFrame) -> dict:
         # the backend's own pose (NaN for OpenCV) and its crashes, where the scores have them
         **{c: float(table[c].median()) for c in OWN_POSE if c in table},
         **{c: int(table[c].sum()) for c in ("failed_frames",) if c in table},
+        "failed": "",
     }
+
+
+def failed_row(name: str, samples: int, reason: str) -> dict:
+    """The summary row of a method whose backend failed: its reason, no measure."""
+    nan = float("nan")
+    return {"pipeline": name, "samples": samples, "refused_samples": 0, "correct_rate": nan,
+            "recall": nan, **dict.fromkeys(SPEED_COLUMNS, nan), "failed": reason}  # fmt: skip
 
 
 def run_compare(
     dataset: Path,
-    pipelines: list[PipelineConfig],
+    pipelines: list[Method],
     out_dir: Path,
     sweep=None,
     speed_frames: int = SPEED_FRAMES,
@@ -107,17 +121,22 @@ def run_compare(
     executor: str = "pool",
     scheduler: str | None = None,
 ) -> pd.DataFrame:
-    """Measure every variant (speed, dataset accuracy, sweeps) and write the report.
+    """Measure every variant (speed, dataset accuracy, sweeps) and every outside method
+    (:mod:`bench.evaluate.outside`: dataset accuracy) and write the report.
 
-    Speed: up to ``speed_frames`` frames of the dataset timed, the pipelines alternating,
-    ``speed_rounds`` rounds (:mod:`bench.evaluate.timing`), after the dataset is verified.
+    Speed: up to ``speed_frames`` frames of the dataset timed, the pipelines (detector
+    plugins too) alternating, ``speed_rounds`` rounds (:mod:`bench.evaluate.timing`), after
+    the dataset is verified; outside methods are not timed (a results file's own times are
+    its speed, else NaN: accuracy only).
     Before anything is written a peer that is not installed
     (:class:`pipeline.backends.BackendUnavailableError`) or a pipeline whose backend cannot
     detect the sweeps' or the dataset's family (ValueError) is refused; then the report
-    folder and every variant's score folder are claimed (ValueError if another command's) and
-    the dataset is verified, once (DatasetIntegrityError naming the file); ``manifest.json``
-    is written last. Scoring and sweeps run their tasks on ``executor``
-    (:class:`~bench.common.executor.TaskPool`), recorded in the manifest.
+    folder and every variant's score folder are claimed (ValueError if another command's),
+    the dataset is verified, once (DatasetIntegrityError naming the file), and the results
+    files are read and the branch finders resolved (ValueError); ``manifest.json`` is
+    written last. A method whose backend fails (BackendError), while timed or scored, gets a
+    ``failed`` row and is left out of the sweeps. Scoring and sweeps run their tasks on
+    ``executor`` (:class:`~bench.common.executor.TaskPool`), recorded in the manifest.
     """
     from bench.dataset.verify import verify_dataset
     from bench.evaluate.band import band_end_boundaries, sweep_band_values
@@ -131,50 +150,72 @@ def run_compare(
     names = [p.name for p in pipelines]
     if len(set(names)) != len(names) or not names:
         raise ValueError(f"--pipelines: need distinct names, got {names}")
-    sweep_pipelines(pipelines, sweep)  # a missing peer or a family it cannot detect: refused now
+    own = [p for p in pipelines if isinstance(p, PipelineConfig)]  # detected, timed, swept
+    if own:  # a missing peer or a family it cannot detect: refused now
+        sweep_pipelines(own, sweep)
     family = dataset_family(dataset)
     # the dataset's family too, before any claim; timed as they score, keyed by name
-    detecting = {p.name: for_family(p, family) for p in pipelines}
+    detecting = {p.name: for_family(p, family) for p in own}
     clock = RunClock()
     claim(out_dir, "compare")
     for pipeline in pipelines:
         claim(dataset / "scores" / pipeline.folder_name, "score")
     verified = verify_dataset(dataset)  # every file hashed once, before the speed frames
+    prepared = prepare(pipelines, verified)  # results files read, branch finders resolved
     chosen = init_worker(variant)
     t_start = time.perf_counter()
-    runs = dataset_runs(dataset, speed_frames)
-    timing = time_pipelines(runs, detecting, speed_rounds)
+    runs = dataset_runs(dataset, speed_frames) if detecting else []
+    rounds = pd.DataFrame(columns=list(ROUND_COLUMNS))  # none when only outside methods
+    failed: dict[str, str] = {}  # a method's failure, timed or scored: the others go on
+    if detecting:
+        timing = time_pipelines(runs, detecting, speed_rounds)
+        rounds, failed = timing.rounds, dict(timing.failed)
     timed = runs_table(runs)
     del runs
-    speed = speed_figures(timing.rounds)
+    speed = speed_figures(rounds)
     # one pool scores every pipeline: a Dask cluster or worker processes start once
     pool = TaskPool(workers, executor=executor, scheduler=scheduler)
     with pool, one_opencv_thread():
         rows, tables = [], {}
-        for pipeline in pipelines:
-            scores = dataset / "scores" / pipeline.folder_name
-            table = score_dataset(dataset, pipeline, scores, verified, pool=pool)
-            tables[pipeline.name] = table
-            rows.append({**summarize(pipeline.name, table), **speed_of(speed, pipeline.name)})
+        for method in pipelines:
+            scores = dataset / "scores" / method.folder_name
+            try:
+                if method.name in failed:  # while timed: not scored
+                    raise BackendError(failed[method.name])
+                if isinstance(method, OutsideMethod):
+                    table, fps = score_outside(
+                        method, prepared.get(method.name), dataset, verified, pool
+                    )
+                    speeds = {**dict.fromkeys(SPEED_COLUMNS, float("nan")), "fps": fps}
+                else:
+                    table = score_dataset(dataset, method, scores, verified, pool=pool)
+                    speeds = speed_of(speed, method.name)
+            except BackendError as exc:
+                failed[method.name] = " ".join(str(exc).split())
+                rows.append(failed_row(method.name, len(verified.records), failed[method.name]))
+                continue
+            tables[method.name] = table
+            rows.append({**summarize(method.name, table), **speeds})
     summary = pd.DataFrame(rows)
+    swept = [p for p in own if p.name not in failed]
     pool_options = {"workers": workers, "executor": executor, "scheduler": scheduler}
     t_sweeps = time.perf_counter()
-    sweeps = run_sweeps(pipelines, sweep, variant, **pool_options)
+    sweeps = run_sweeps(swept, sweep, variant, **pool_options) if swept else pd.DataFrame()
     t_band = time.perf_counter()
     band_tables = {  # the boundary axes again, the base point's PSF at each band end
-        end.base_psf_scale: run_sweeps(pipelines, end, variant, **pool_options)
-        for end in sweep.band_end_sweeps()
+        end.base_psf_scale: run_sweeps(swept, end, variant, **pool_options)
+        for end in (sweep.band_end_sweeps() if swept else ())
     }
     band_s = time.perf_counter() - t_band
-    edges = boundaries(sweeps)
+    edges = boundaries(sweeps) if swept else pd.DataFrame()
     band_edges = band_end_boundaries(band_tables)
     band = sweep_band_values(sweeps, band_edges, tuple(band_tables)) if band_tables else None
     leads = leaders(summary, edges, band)
 
     out_dir.mkdir(parents=True, exist_ok=True)
-    written = write_sweeps(out_dir, sweeps, sweep, pipelines)
+    written = write_sweeps(out_dir, sweeps, sweep, swept) if swept else []
     frames = [("summary", summary), ("boundaries", edges), ("leaders", leads)]
-    frames += [("speed_frames", timed), ("speed_rounds", timing.rounds)]
+    frames += [("speed_frames", timed), ("speed_rounds", rounds)]
     if band_tables:
         frames += [
             ("sweeps_band_ends", pd.concat(band_tables.values(), ignore_index=True)),
@@ -195,7 +236,7 @@ def run_compare(
         "opencv": cv2.__version__,
         "wall_s": time.perf_counter() - t_start,
         "speed": {
-            "frames": int(timed["timed"].sum()),
+            "frames": int(timed["timed"].sum()) if len(rounds) else 0,  # 0: nothing timed
             "runs": int(timed["run"].nunique()),
             "samples": int(timed["sample_id"].nunique()),
             "rounds": speed_rounds,
@@ -215,13 +256,15 @@ def run_compare(
             f"{sweep.base_lighting}",
         },
     }
-    report = render_report(summary, tables, edges, leads, grids, meta)
+    report = render_report(summary, tables, edges, leads, grids, meta, failed)
     write_bytes(out_dir / "report.md", report.encode())
     written += [out_dir / "pareto.png", out_dir / "report.md"]
     written += [out_dir / "grids" / n for names in grids.values() for n in names]
     config = {
         "dataset": str(dataset),
-        "pipelines": [p.to_json() for p in pipelines],
+        "pipelines": [p.to_json() for p in own],
+        "outside": [m.name for m in pipelines if isinstance(m, OutsideMethod)],
+        "failed": failed,
         "sweep": sweep.to_json(),  # also in sweep_config.json, beside the sweep table
         "speed_frames": speed_frames,
         "speed_rounds": speed_rounds,
@@ -244,7 +287,7 @@ def run_compare(
     return summary
 
 
-def _copy_grids(dataset: Path, pipelines: list[PipelineConfig], out_dir: Path) -> dict:
+def _copy_grids(dataset: Path, pipelines: list[Method], out_dir: Path) -> dict:
     """Each variant's results grids, copied beside the report: {variant: [file names]}."""
     grids = {}
     for pipeline in pipelines:
@@ -263,135 +306,3 @@ def _copy_grids(dataset: Path, pipelines: list[PipelineConfig], out_dir: Path) -
     if not any(grids.values()) and (out_dir / "grids").is_dir():
         shutil.rmtree(out_dir / "grids")
     return grids
-
-
-def _markdown_table(frame: pd.DataFrame, floats: str = "{:.3g}") -> str:
-    cells = [
-        [floats.format(v) if isinstance(v, float) else str(v) for v in row]
-        for row in frame.itertuples(index=False)
-    ]
-    head = "| " + " | ".join(frame.columns) + " |\n|" + "---|" * len(frame.columns) + "\n"
-    return head + "".join("| " + " | ".join(row) + " |\n" for row in cells)
-
-
-def render_report(
-    summary: pd.DataFrame,
-    tables: dict[str, pd.DataFrame],
-    edges: pd.DataFrame,
-    leads: pd.DataFrame,
-    grids: dict[str, list[str]],
-    meta: dict,
-) -> str:
-    """The report's Markdown: who leads, the figures, the tables, where each variant fails."""
-    columns = [
-        "pipeline",
-        "fps",
-        "fps_min",
-        "fps_max",
-        "correct_rate",
-        "recall",
-        "deflection_err_mm",
-        "corner_err_px",
-        "rot_err_deg",
-        "trans_err_mm",
-        *[c for c in (*OWN_POSE, "failed_frames") if c in summary],
-        "false_positive_samples",
-        "false_negative_samples",
-        "refused_samples",
-        "false_detections",
-    ]
-    lines = [
-        "# Pipeline comparison",
-        "",
-        f"Dataset `{meta['dataset']}` ({meta['samples']} samples); speed on its own frames "
-        "(below), one OpenCV thread; "
-        f"{meta['cpu_count']} cores, OpenCV {meta['opencv']}, Mitsuba variant {meta['variant']}; "
-        f"the whole comparison took {meta['wall_s']:.0f} s.",
-        "",
-        "## Who leads",
-        "",
-        "Per measure, the leading pipeline, the best of the project's pipelines and the best "
-        "peer detector (`leaders.csv`); failure boundaries: how far recall stays >= 95 %.",
-        "",
-        *[f"- {line}" for line in leader_lines(leads)],
-        *[f"- {line}" for line in failed_frame_lines(tables)],
-        *[f"- {line}" for line in refused_lines(summary)],
-        "",
-        *band_section(leads, meta),
-        "## Accuracy against speed",
-        "",
-        *speed_section(leads, meta["speed"]),
-        "![accuracy against speed](pareto.png)",
-        "",
-        _markdown_table(summary[columns]),
-        "## Where each variant fails: recall and pose error against the imaging conditions",
-        "",
-        "Each axis varies one condition from a base point; dots are single seeds, lines their "
-        "mean, so a boundary whose seeds disagree is visible as spread.",
-        "",
-        "![sweeps](sweeps.png)",
-        "",
-        _markdown_table(edges),
-        "## Samples each variant gets wrong",
-        "",
-    ]
-    for name, table in tables.items():
-        wrong = table[table["outcome"] != "correct"]
-        lines.append(f"### {name}: {len(table) - len(wrong)}/{len(table)} correct")
-        lines.append("")
-        if len(wrong):
-            lines.append(
-                _markdown_table(wrong[["sample_id", "outcome", "estimated_gaps", "true_gaps"]])
-            )
-        lines += [f"![{name} {g}](grids/{g})" for g in grids.get(name, [])] + [""]
-    return "\n".join(lines) + "\n"
-
-
-def speed_section(leads: pd.DataFrame, speed: dict) -> list[str]:
-    """How frames/s was measured, and whether the speed lead is within the spread."""
-    lines = [
-        f"Frames/s: {speed['frames']} frames of this dataset, in {speed['runs']} runs of "
-        f"consecutive frames from {speed['samples']} samples (`speed_frames.csv`), each after an "
-        "untimed lead-in frame; the pipelines alternate on every run, each round starting one "
-        f"pipeline later, over {speed['rounds']} rounds (`speed_rounds.csv`), so a change in the "
-        "machine's load falls on all of them alike. `fps` is the median over rounds, `fps_min` "
-        "and `fps_max` the slowest and fastest round (the chart's bars).",
-        "",
-    ]
-    fps = leads[leads["measure"] == "fps"]
-    if len(fps) and isinstance(fps["lead_within_spread"].iloc[0], bool):
-        row = next(fps.itertuples(index=False))
-        lines += [f"The speed lead of {row.leader}: {spread_verdict(row)}.", ""]
-    return lines
-
-
-def refused_lines(summary: pd.DataFrame) -> list[str]:
-    """A line per pipeline that refused every sample: it has no accuracy measure, so it leads
-    on none and has no point in the accuracy charts; the line says why instead."""
-    everything = summary[summary["refused_samples"] == summary["samples"]]
-    return [
-        f"{row.pipeline}: refused all {row.samples} samples (why: `refused_reason` in its "
-        "scores' samples.csv), so it has no accuracy measure"
-        for row in everything.itertuples()
-    ]
-
-
-def failed_frame_lines(tables: dict[str, pd.DataFrame]) -> list[str]:
-    """A line per peer: the frames its backend crashed on, per sample (from the scores'
-    ``failed_frames`` and ``failed_frame_ids``; NaN for a refused sample is no failure)."""
-    lines = []
-    for name, table in tables.items():
-        if not is_peer(name) or "failed_frames" not in table:
-            continue
-        failed = table[table["failed_frames"] > 0]
-        if failed.empty:
-            lines.append(f"{name}: no failed frames")
-            continue
-        where = "; ".join(
-            f"{r.sample_id} frames {', '.join(map(str, json.loads(r.failed_frame_ids)))}"
-            if "failed_frame_ids" in table
-            else f"{r.sample_id} ({int(r.failed_frames)} frames)"
-            for r in failed.itertuples()
-        )
-        lines.append(f"{name}: {int(failed['failed_frames'].sum())} failed frames: {where}")
-    return lines

@@ -3,7 +3,8 @@
 A comparison with peers (:mod:`pipeline.backends`) must say, measure by measure, whether the
 project's pipelines or a peer detector is ahead; a chart alone leaves it to the reader. A
 *peer* is a pipeline whose preset is named after a peer backend (``locus``, ``apriltag``, and
-their ``/choice=`` variants): the detector as its authors ship it. A project preset on a peer's
+their ``/choice=`` variants): the detector as its authors ship it; so is a method from outside
+the project (a detector plugin, a results file, a branch finder). A project preset on a peer's
 detector (``robust/detector=locus``) is the project's pipeline, and counts as the project's.
 
 Measures come from the ``compare`` summary or ``bench pipeline``'s rows (only the columns
@@ -22,7 +23,9 @@ and ``fps_min`` and ``fps_max`` (the slowest and fastest round) its spread. A sp
 *within the spread* (``lead_within_spread`` true) when another pipeline's fastest round reaches
 the leader's slowest round, or the leaders tie: another round could have put that pipeline
 first. ``spread_rivals`` names those pipelines; both are empty for a measure without a spread,
-or with no other pipeline timed.
+or with no other pipeline timed. Only pipelines timed in the rounds (a spread) are compared: a
+method with no speed (accuracy only) or a speed from elsewhere (a results file's own times) is
+never a rival, and a lead of such a speed is not judged.
 """
 
 from __future__ import annotations
@@ -63,8 +66,16 @@ COLUMNS = (
 )  # fmt: skip
 
 
+#: How the names of methods from outside the project start: a detector plugin, a results file,
+#: a branch finder (:mod:`bench.evaluate.outside`). They count as peers: not the project's.
+OUTSIDE_PREFIXES = ("plugin:", "results:", "branch-plugin:")
+
+
 def is_peer(pipeline: str) -> bool:
-    """Whether the pipeline's preset is a peer backend's (``locus``, ``apriltag/...``)."""
+    """Whether the pipeline's preset is a peer backend's (``locus``, ``apriltag/...``) or the
+    method is from outside the project (a plugin, a results file)."""
+    if pipeline.startswith(OUTSIDE_PREFIXES):
+        return True
     preset = pipeline.split("/")[0]
     return preset in BACKENDS and preset != "opencv"
 
@@ -139,16 +150,17 @@ def _within_spread(
     """(whether the lead on ``column`` is within its spread across rounds, None where that is
     not judged; the other pipelines whose range reaches the leader's, comma-joined).
 
-    A pipeline without a spread (one figure) counts as its value alone; one without a value
-    (not timed) is not compared."""
+    Only the pipelines timed in the rounds (with a spread) are compared: one without (not
+    timed, or a results file's own speed) is never a rival, and its lead is not judged."""
     spread = SPREADS.get(column)
     if not leader or spread is None or not set(spread) <= set(by_name):
         return None, ""
-    values = by_name[column].astype(float)
-    low = by_name[spread[0]].astype(float).fillna(values)
-    high = by_name[spread[1]].astype(float).fillna(values)
+    low, high = (by_name[c].astype(float) for c in spread)
+    timed = list(by_name.index[low.notna() & high.notna()])
     leads = leader.split(", ")
-    others = [n for n in values.index[values.notna()] if n not in leads]
+    if not set(leads) <= set(timed):  # a lead of a speed not timed here
+        return None, ""
+    others = [n for n in timed if n not in leads]
     if not others and len(leads) == 1:  # nobody else timed: no lead to judge
         return None, ""
     if higher:  # another's best round reaches the leaders' worst

@@ -2,7 +2,9 @@
 
 Peers (:func:`bench.evaluate.leaders.is_peer`) are hollow diamonds, the project's pipelines
 filled circles; frames/s is the median over timing rounds with a bar from the slowest to the
-fastest round (:mod:`bench.evaluate.timing`).
+fastest round (:mod:`bench.evaluate.timing`). A method with an accuracy but no speed (NaN: not
+timed, such as a results file without times or a branch finder) is never on the front: it is a
+dotted line at its accuracy, labelled "accuracy only".
 """
 
 from __future__ import annotations
@@ -47,15 +49,17 @@ def plot_pareto(summary: pd.DataFrame, path: Path) -> None:
 
     The front is computed over every pipeline, peers included; peers are hollow diamonds, the
     project's pipelines filled circles (red on the front, grey behind it); a bar spans each
-    pipeline's slowest to fastest round. A pipeline without a value for a measure (it refused
-    every sample) or without a speed (accuracy only) cannot be placed: the panel's title names
-    it, so no pipeline drops out of the chart unsaid."""
+    pipeline's slowest to fastest round. A method without a speed is a dotted line at its
+    accuracy, named "(accuracy only)"; one without a value for a measure (it refused every
+    sample, or failed) cannot be placed: the panel's title names it, so no method drops out
+    of the chart unsaid."""
     fig, axes = plt.subplots(1, len(ACCURACY), figsize=(5 * len(ACCURACY), 4), dpi=110)
     speed = summary["fps"].to_numpy()
     peer = summary["pipeline"].map(is_peer).to_numpy(bool)
     for ax, (column, label, higher) in zip(axes, ACCURACY, strict=True):
         acc = summary[column].to_numpy(float)
         placed = np.isfinite(acc) & np.isfinite(speed)
+        untimed = np.isfinite(acc) & ~np.isfinite(speed)
         front = pareto_front(speed, acc, higher)
         for mine, where, colour in (
             (placed & ~front, "behind the front", "#9e9e9e"),
@@ -73,16 +77,12 @@ def plot_pareto(summary: pd.DataFrame, path: Path) -> None:
         names = summary["pipeline"].to_numpy()
         for x, y, name in zip(speed[placed], acc[placed], names[placed], strict=True):
             ax.annotate(name, (x, y), fontsize=7, xytext=(4, 3), textcoords="offset points")
-        unplaced = [
-            f"{why}: {', '.join(names[lost])}"
-            for why, lost in (
-                ("no value", ~np.isfinite(acc)),
-                ("accuracy only", np.isfinite(acc) & ~np.isfinite(speed)),
-            )
-            if lost.any()
-        ]
-        if unplaced:
-            ax.set_title("; ".join(unplaced), fontsize=8)
+        for y, name in zip(acc[untimed], names[untimed], strict=True):
+            ax.axhline(y, ls=":", c="#0072b2", lw=1.2)
+            ax.annotate(f"{name} (accuracy only)", (0.01, y), xycoords=("axes fraction", "data"),
+                        fontsize=7, xytext=(0, 3), textcoords="offset points")  # fmt: skip
+        if not np.isfinite(acc).all():
+            ax.set_title(f"no value: {', '.join(names[~np.isfinite(acc)])}", fontsize=8)
         if placed.any():  # an empty panel has no range to log-scale
             ax.set_xscale("log")
             ax.xaxis.set_minor_formatter(NullFormatter())  # crowded labels between decades

@@ -313,3 +313,19 @@ def frames_per_s(table: pd.DataFrame, fps: float | None) -> float | None:
     per_frame = table.groupby("frame")[TIME_COLUMN].first()
     total = float(per_frame.sum())
     return len(per_frame) / total if total > 0 and math.isfinite(total) else None
+
+
+def sample_facts(verified: VerifiedDataset) -> dict[str, SampleFacts]:
+    """What each sample's detections are checked against: frames, image size, family size."""
+    from bench.evaluate.score import _array
+    from scenes.array import ArraySpec
+    from scenes.marker import get_dictionary
+    from scenes.profile import load_profile
+
+    facts = {}
+    for sample_id, record in verified.records.items():
+        lens = load_profile(verified.folder / sample_id / "camera.json").lens
+        array = _array(record) or ArraySpec()
+        family = len(get_dictionary(array.dictionary).bytesList)
+        facts[sample_id] = SampleFacts(int(record["frames"]), lens.width_px, lens.height_px, family)
+    return facts

@@ -18,7 +18,10 @@ Shared by ``compare`` (on frames of the dataset it compares: :func:`dataset_runs
   round (:func:`bench.evaluate.leaders.leaders`: ``lead_within_spread``).
 
 Timing is keyed by pipeline name: a pipeline not timed here (another tool's results) has no
-row, and its readers give it NaN (accuracy only).
+row, and its readers give it NaN (accuracy only). A pipeline whose backend fails
+(:class:`pipeline.backends.BackendError`: a plugin that raises, answers outside its contract,
+or crashes or hangs image after image) drops out of the rounds: its rows are left out (no
+speed) and :attr:`Timing.failed` says why, while the others go on.
 """
 
 from __future__ import annotations
@@ -26,7 +29,7 @@ from __future__ import annotations
 import math
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from time import perf_counter
 
@@ -34,6 +37,7 @@ import cv2
 import numpy as np
 import pandas as pd
 
+from pipeline.backends import BackendError
 from pipeline.presets import PipelineConfig
 from pipeline.track import MarkerSet, TrackResult, track
 from scenes.camera import FisheyeCamera
@@ -73,10 +77,12 @@ class TimedRun:
 class Timing:
     """What :func:`time_pipelines` measured: ``rounds``, one row per round and pipeline in
     the order they ran (:data:`ROUND_COLUMNS`; ``position``: the pipeline's turn in the
-    round), and each pipeline's detections on each run in the first round."""
+    round), each pipeline's detections on each run in the first round, and why each pipeline
+    that failed did (``{name: reason}``, one line each; it has no rows)."""
 
     rounds: pd.DataFrame
     detections: dict[str, list[pd.DataFrame]]
+    failed: dict[str, str] = field(default_factory=dict)
 
 
 def plan_runs(
@@ -197,21 +203,29 @@ def time_pipelines(
     """Time every pipeline (``{name: config}``) on ``runs``, alternating, ``rounds`` times.
 
     In each round every run is tracked by every pipeline in :func:`round_order`; OpenCV runs
-    on one thread (:func:`one_opencv_thread`; the peers' adapters use one of their own)."""
+    on one thread (:func:`one_opencv_thread`; the peers' adapters use one of their own). A
+    pipeline that fails (BackendError) drops out of the rounds: :attr:`Timing.failed`."""
     if rounds < 1 or not pipelines:
         raise ValueError(f"need rounds >= 1 and a pipeline, got {rounds} and {len(pipelines)}")
     if not any(run.timed_frames for run in runs):
         raise ValueError("no frames to time: no sample has 2 frames or more")
     names = list(pipelines)
     frames = sum(run.timed_frames for run in runs)
-    rows, detections = [], {name: [] for name in names}
+    rows, detections, failed = [], {name: [] for name in names}, {}
     with one_opencv_thread():
         for r in range(rounds):
-            order = round_order(names, r)
+            live = [n for n in names if n not in failed]
+            if not live:  # every pipeline failed
+                break
+            order = round_order(live, r)
             seconds = dict.fromkeys(order, 0.0)
             for run in runs:
-                for name in order:
-                    elapsed, result = timed_track(run, pipelines[name])
+                for name in (n for n in order if n not in failed):
+                    try:
+                        elapsed, result = timed_track(run, pipelines[name])
+                    except BackendError as exc:  # that pipeline's failure: the others go on
+                        failed[name] = " ".join(str(exc).split())
+                        continue
                     seconds[name] += elapsed
                     if r == 0:
                         detections[name].append(result.detections)
@@ -219,8 +233,12 @@ def time_pipelines(
                 dict(zip(ROUND_COLUMNS, (r, p, name, frames, seconds[name],
                                          frames / seconds[name]), strict=True))
                 for p, name in enumerate(order)
+                if name not in failed  # its earlier rounds too: left out below
             ]  # fmt: skip
-    return Timing(pd.DataFrame(rows, columns=list(ROUND_COLUMNS)), detections)
+    table = pd.DataFrame(rows, columns=list(ROUND_COLUMNS))
+    table = table[~table["pipeline"].isin(failed)].reset_index(drop=True)
+    kept = {name: found for name, found in detections.items() if name not in failed}
+    return Timing(table, kept, failed)
 
 
 def speed_figures(rounds: pd.DataFrame) -> pd.DataFrame:
