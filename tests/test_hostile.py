@@ -330,7 +330,7 @@ CASES: list[tuple[str, str]] = [
     ),  # fmt: skip
     ("detect-images {fx}/afile --pipelines=paper --camera-format=kalibr", r"--camera-format"),
     # issue 12: --detector / --family (study, dataset)
-    (f"{S} --detector=aruco", r"--detector.*invalid choice.*opencv"),
+    (f"{S} --detector=aruco", r"--detector.*aruco.*built-in detectors: opencv"),
     (f"{S} --family=nan", r"--family/--dictionary.*unknown"),
     (f"{S} --detector=locus --family=apriltag_25h9", r"--family.*locus cannot detect family"),
     (f"{S} --detector=locus --dictionary=7x7_50", r"--dictionary.*locus cannot detect"),
