@@ -56,7 +56,7 @@ class DetectorConfig:
     use_aruco3_detection: bool = False
     #: Pixels per code cell when OpenCV reads the bits (its perspectiveRemovePixelPerCell,
     #: default 4). Under a lens blur of about a fifth of a cell, 4 samples per cell misread bits
-    #: (see the detectability study in the README); more samples read the cell's centre.
+    #: (see docs/detectability.md); more samples read the cell's centre.
     cell_px: int = 4
     #: Which library finds the markers (:data:`pipeline.backends.BACKENDS`, or a plugin's
     #: ``plugin:SPEC``, :mod:`pipeline.backends.plugin`).

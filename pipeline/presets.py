@@ -25,7 +25,7 @@ changes, for example ``paper/refine=contour/aruco3=on`` or ``fast/window=3-23-10
     ROI, the full frame only to (re)acquire), AprilTag 3 looks again where a tracked marker was
     lost (``recover``), ``lines`` refines, then the virtual-view pose, integration, fixed
     threshold. Built to be on or beyond every peer's Pareto front (frames/s,
-    marker recall, corner error; the README's comparison). Needs the peers extra.
+    marker recall, corner error; docs/pipelines.md, the comparison). Needs the peers extra.
 ``locus``, ``apriltag``
     The peers (:mod:`pipeline.backends`) as their authors ship them: the full frame, their own
     corners, then this project's virtual-view pose, integration and fixed threshold (the pose

@@ -423,6 +423,7 @@ def test_score_and_compare_report_a_pipeline_that_refuses_every_sample(
     assert main(["score", str(dataset), "--pipeline", "naive", "--out", str(tmp_path / "s")]) == 0
     out, err = capsys.readouterr()
     assert "2 samples, 2 refused: no rates;" in out and err.count("refused: no no-contact") == 2
+    assert "note: naive refused 2 of 2 samples" in out and f"{tmp_path / 's'}/samples.csv" in out
     table = pd.read_csv(tmp_path / "s" / "samples.csv")
     assert set(SCORED_COLUMNS) <= set(table) and (table["outcome"] == "refused").all()
 
@@ -440,6 +441,8 @@ def test_score_and_compare_report_a_pipeline_that_refuses_every_sample(
     out = capsys.readouterr().out
     assert "naive:    10.0 frames/s (9.0-11.0), refused all 2 samples, no rates" in out
     assert "speed lead of paper, naive: a tie, within the spread across rounds" in out
+    assert f"refused_reason in {dataset / 'scores' / 'naive' / 'samples.csv'}" in out
+    assert "note: paper" not in out  # it refused nothing and read the markers
     summary = pd.read_csv(report / "summary.csv").set_index("pipeline")
     assert summary.loc["naive", ["samples", "refused_samples"]].tolist() == [2, 2]
     assert np.isnan(summary.loc["naive", "correct_rate"]) and summary.loc["paper", "recall"] > 0.9

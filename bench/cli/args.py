@@ -192,7 +192,7 @@ def add_executor_options(p: argparse.ArgumentParser) -> None:
         "--scheduler",
         metavar="tcp://HOST:PORT",
         help="a running Dask scheduler (dask scheduler) whose workers run the tasks; implies "
-        "--executor dask (README: Running on more machines)",
+        "--executor dask (docs/dask.md)",
     )
 
 

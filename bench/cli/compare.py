@@ -19,6 +19,7 @@ from bench.cli.evaluate import (
     methods,
     pipelines,
 )
+from bench.cli.hints import CSV, summary_hints
 from pipeline.backends import PEERS_INSTALL
 from pipeline.presets import PRESETS, PipelineConfig
 from renderers.variant import VARIANTS
@@ -189,6 +190,13 @@ def cmd_compare(args: argparse.Namespace) -> int:
         else:
             speed = "accuracy only"
         print(f"{row.pipeline:>24}: {speed}, {accuracy}")
+    folders = {p.name: p.folder_name for p in args.pipelines}
+    for row in summary.itertuples():
+        if row.failed:  # said above
+            continue
+        csv = args.dataset / "scores" / folders.get(row.pipeline, row.pipeline) / CSV
+        for line in summary_hints(row.pipeline, row.recall, row.refused_samples, row.samples, csv):
+            print(line)
     leads = pd.read_csv(out / "leaders.csv")
     for row in leads[leads["measure"] == "fps"].itertuples(index=False):
         if isinstance(row.lead_within_spread, bool):

@@ -11,6 +11,7 @@ from pathlib import Path
 
 from bench.cli import limits
 from bench.cli.args import add_executor_options, check_executor, check_out_folder, name_list
+from bench.cli.hints import CSV, summary_hints
 from bench.cli.results import (
     add_results_options,
     cmd_score_branch_plugin,
@@ -243,6 +244,9 @@ def cmd_score(args: argparse.Namespace) -> int:
         f"{len(table)} samples, {len(refused)} refused: {accuracy}; wrote {out}/samples.csv "
         "and grid-*.png"
     )
+    name = args.pipeline.name
+    for line in summary_hints(name, table["recall"].mean(), len(refused), len(table), out / CSV):
+        print(line)
     for row in refused.itertuples():
         print(f"warning: {row.sample_id} refused: {row.refused_reason}", file=sys.stderr)
     for row in table.itertuples():

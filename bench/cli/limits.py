@@ -1,7 +1,7 @@
 """Upper limits of the options that size work or memory, estimated before anything is allocated.
 
 Each command's work is estimated from its options with costs measured on this project's 2-core
-machine (README "Performance"; the figures are lower bounds: the fastest rates seen). A run is
+machine (docs/performance.md; the figures are lower bounds: the fastest rates seen). A run is
 refused, naming the option that grows it most, when it would need more memory than half of this
 machine's physical memory or run longer than :data:`TIME_BUDGET_S` on all of its cores. The
 message says the estimate, the limit on that option and how it was derived.
@@ -25,15 +25,17 @@ TIME_BUDGET_S = 7 * 24 * 3600.0
 TIME_BUDGET_TEXT = "7 days"
 
 # --- measured costs (seconds, bytes), lower bounds
-#: Clean render of one study cell at 16 spp (README: about 83 ms per cell, llvm_ad_rgb).
+#: Clean render of one study cell at 16 spp (docs/performance.md: about 83 ms per cell,
+#: llvm_ad_rgb).
 STUDY_RENDER_S_AT_16_SPP = 0.083
-#: One study image through the twin and the detector, render excluded (README: 0.17 + 0.78 +
-#: 1.72 ms CPU per image).
+#: One study image through the twin and the detector, render excluded (docs/performance.md:
+#: 0.17 + 0.78 + 1.72 ms CPU per image).
 STUDY_IMAGE_S = 0.0027
-#: One band frame of a dataset at 4 spp and 4 subframes, render only (README: 17.7 frames/s,
-#: `bench dataset`, llvm_ad_rgb).
+#: One band frame of a dataset at 4 spp and 4 subframes, render only (docs/datasets.md:
+#: 17.7 frames/s, `bench dataset`, llvm_ad_rgb).
 DATASET_FRAME_S_AT_16_RAYS = 1 / 17.7
-#: Full frames render this many times slower than the band (README: 17.7 against 6.4 frames/s).
+#: Full frames render this many times slower than the band (docs/datasets.md: 17.7 against
+#: 6.4 frames/s).
 FULL_FRAME_FACTOR = 17.7 / 6.4
 #: Memory of a simulated sample per time sample (frames x (subframes + 1)): 6.3 kB measured
 #: with tracemalloc over simulate_sample (peak 31.5 kB per frame at 4 subframes).
@@ -97,7 +99,7 @@ def check_time(field: str, seconds: float, what: str, value: float, per_unit_s: 
             field,
             f"{_num(value)}: {what} would take at least {_duration(seconds / cores())} on "
             f"{cores()} cores; limit {limit} ({TIME_BUDGET_TEXT} at the fastest measured rates, "
-            "README Performance)",
+            "docs/performance.md)",
         )
 
 
@@ -286,7 +288,7 @@ def check_sweep(sweep, pipelines: int) -> None:
 
 
 #: A full 2592 x 1944 study frame: about 20 s to render and 0.9 s per image through the twin
-#: (README Performance).
+#: (docs/performance.md).
 FULL_FRAME_RENDER_S = 20.0
 FULL_FRAME_IMAGE_S = 0.9
 

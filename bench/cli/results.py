@@ -12,6 +12,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from bench.cli.args import check_out_folder
+from bench.cli.hints import CSV, summary_hints
 from bench.dataset.verify import SAMPLE_ID
 from pipeline.presets import PRESETS
 from scenes.validation import FieldError
@@ -126,6 +127,9 @@ def cmd_score_results(args: argparse.Namespace, fail: Callable[[str], int], exec
         f"{name}: {len(table)} samples, {len(refused)} refused: {accuracy}; {speed}; wrote "
         f"{out}/samples.csv and grid-*.png"
     )
+    recall = scored["recall"].mean() if len(scored) else float("nan")
+    for line in summary_hints(name, recall, len(refused), len(table), out / CSV):
+        print(line)
     for row in refused.itertuples():
         print(f"warning: {row.sample_id} refused: {row.refused_reason}", file=sys.stderr)
     return 0
