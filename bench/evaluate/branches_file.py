@@ -131,12 +131,8 @@ def score_branches(
     ``refused``: why each sample without estimates has none (a branch plugin that crashed on
     it, :mod:`bench.evaluate.branch_plugin`); ``plugin``: that plugin's name, where the
     estimates come from it and not from the file ``path``."""
-    from bench.evaluate.score import (
-        SCORED_COLUMNS,
-        branch_outcome,
-        plot_grid,
-        sample_columns,
-    )
+    from bench.evaluate.grid_plot import plot_grid
+    from bench.evaluate.score import SCORED_COLUMNS, branch_outcome, sample_columns
 
     out_dir = Path(out_dir)
     clock = RunClock()

@@ -141,7 +141,7 @@ def run_compare(
     from bench.dataset.verify import verify_dataset
     from bench.evaluate.band import band_end_boundaries, sweep_band_values
     from bench.evaluate.score import dataset_family, dataset_psf_scale, for_family, score_dataset
-    from bench.evaluate.sweep_config import SweepConfig
+    from bench.evaluate.sweep_config import SweepConfig, sweep_options
     from bench.evaluate.sweep_report import boundaries, write_sweeps
     from bench.evaluate.sweeps import run_sweeps, sweep_pipelines
 
@@ -225,7 +225,7 @@ def run_compare(
         with atomic_path(out_dir / f"{name}.csv") as tmp:
             frame.to_csv(tmp, index=False)
         written.append(out_dir / f"{name}.csv")
-    plot_pareto(summary, out_dir / "pareto.png")
+    plot_pareto(summary, out_dir / "pareto.png", dataset.name, sweep_options(sweep))
     grids = _copy_grids(dataset, pipelines, out_dir)
     meta = {
         "dataset": str(dataset),

@@ -9,6 +9,7 @@ dotted line at its accuracy, labelled "accuracy only".
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 
 import matplotlib
@@ -19,7 +20,7 @@ import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 from matplotlib.ticker import NullFormatter  # noqa: E402
 
-from bench.common.atomic import atomic_path  # noqa: E402
+from bench.common.figures import BLUE, GREY, VERMILLION, save, titled  # noqa: E402
 from bench.evaluate.leaders import is_peer  # noqa: E402
 
 #: Accuracy measures on the dataset: column, label, whether higher is better.
@@ -44,16 +45,22 @@ def pareto_front(speed: np.ndarray, accuracy: np.ndarray, higher_better: bool) -
     return front
 
 
-def plot_pareto(summary: pd.DataFrame, path: Path) -> None:
+def plot_pareto(
+    summary: pd.DataFrame, path: Path, dataset: str = "", options: Sequence[str] = ()
+) -> None:
     """Accuracy against speed, one panel per accuracy measure, the Pareto front drawn.
 
     The front is computed over every pipeline, peers included; peers are hollow diamonds, the
-    project's pipelines filled circles (red on the front, grey behind it); a bar spans each
-    pipeline's slowest to fastest round. A method without a speed is a dotted line at its
-    accuracy, named "(accuracy only)"; one without a value for a measure (it refused every
-    sample, or failed) cannot be placed: the panel's title names it, so no method drops out
-    of the chart unsaid."""
-    fig, axes = plt.subplots(1, len(ACCURACY), figsize=(5 * len(ACCURACY), 4), dpi=110)
+    project's pipelines filled circles (vermillion on the front, grey behind it: told apart by
+    lightness too); a bar spans each pipeline's slowest to fastest round. A method without a
+    speed is a dotted line at its accuracy, named "(accuracy only)"; one without a value for a
+    measure (it refused every sample, or failed) cannot be placed: the panel's title names it,
+    so no method drops out of the chart unsaid. The title names the ``dataset`` and the run's
+    non-default ``options``; the legend stands below the panels."""
+    fig, axes = plt.subplots(
+        1, len(ACCURACY), figsize=(5 * len(ACCURACY), 4.2), layout="constrained", squeeze=False
+    )
+    axes = axes[0]
     speed = summary["fps"].to_numpy()
     peer = summary["pipeline"].map(is_peer).to_numpy(bool)
     for ax, (column, label, higher) in zip(axes, ACCURACY, strict=True):
@@ -62,8 +69,8 @@ def plot_pareto(summary: pd.DataFrame, path: Path) -> None:
         untimed = np.isfinite(acc) & ~np.isfinite(speed)
         front = pareto_front(speed, acc, higher)
         for mine, where, colour in (
-            (placed & ~front, "behind the front", "#9e9e9e"),
-            (front, "Pareto front", "#d62728"),
+            (placed & ~front, "behind the front", GREY),
+            (front, "Pareto front", VERMILLION),
         ):
             if "fps_min" in summary:  # the spread across rounds
                 low, high = summary["fps_min"].to_numpy(float), summary["fps_max"].to_numpy(float)
@@ -73,12 +80,12 @@ def plot_pareto(summary: pd.DataFrame, path: Path) -> None:
             ax.scatter(speed[mine & peer], acc[mine & peer], marker="D", s=55, facecolors="none",
                        edgecolors=colour, linewidths=1.6, label=f"peer, {where}")  # fmt: skip
         order = np.argsort(speed[front])
-        ax.plot(speed[front][order], acc[front][order], "-", c="#d62728", lw=1)
+        ax.plot(speed[front][order], acc[front][order], "-", c=VERMILLION, lw=1)
         names = summary["pipeline"].to_numpy()
         for x, y, name in zip(speed[placed], acc[placed], names[placed], strict=True):
             ax.annotate(name, (x, y), fontsize=7, xytext=(4, 3), textcoords="offset points")
         for y, name in zip(acc[untimed], names[untimed], strict=True):
-            ax.axhline(y, ls=":", c="#0072b2", lw=1.2)
+            ax.axhline(y, ls=":", c=BLUE, lw=1.2)
             ax.annotate(f"{name} (accuracy only)", (0.01, y), xycoords=("axes fraction", "data"),
                         fontsize=7, xytext=(0, 3), textcoords="offset points")  # fmt: skip
         if not np.isfinite(acc).all():
@@ -92,9 +99,9 @@ def plot_pareto(summary: pd.DataFrame, path: Path) -> None:
     handles, labels = axes[0].get_legend_handles_labels()
     shown = [(h, t) for h, t in zip(handles, labels, strict=True) if len(h.get_offsets())]
     if shown:  # none when every pipeline refused every sample
-        axes[0].legend(*zip(*shown, strict=True), fontsize=7)
-    fig.suptitle("accuracy against speed (hollow diamonds: peer detectors)", fontsize=10)
-    fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png")
-    plt.close(fig)
+        fig.legend(*zip(*shown, strict=True), loc="outside lower center", ncol=len(shown),
+                   fontsize=8, frameon=False)  # fmt: skip
+    on = f" on {dataset}" if dataset else ""
+    title = f"Accuracy against speed{on} (hollow diamonds: peer detectors)"
+    fig.suptitle(titled(title, options), fontsize=10)
+    save(fig, path)
