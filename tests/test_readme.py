@@ -27,8 +27,8 @@ QUICKSTART = re.compile(r"<!-- quickstart -->\s*```bash\n(.*?)```\s*<!-- /quicks
 FENCE = re.compile(r"^```.*?^```", re.S | re.M)
 LINK = re.compile(r"!?\[[^\]]*\]\(([^)\s]+)\)")
 HEADING = re.compile(r"^#{1,6} +(.+?) *#*$", re.M)
-#: A timing in a quick-start comment: "# 22 s", "# 3 min".
-TIME = re.compile(r"#\s*(\d+(\.\d+)?\s*(s|min))\b")
+#: A timing in a quick-start comment: "# 22 s", "# 22-69 s", "# 3 min".
+TIME = re.compile(r"#\s*\d+(\.\d+)?(-\d+(\.\d+)?)?\s*(s|min)\b")
 #: A path a quick-start comment names as the command's output.
 OUTPUT = re.compile(r"\b((?:runs|data)/[\w./-]+)")
 
