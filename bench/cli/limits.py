@@ -259,7 +259,7 @@ def check_dataset(config, workers: int = 1) -> None:
             field,
             f"{_num(value)}: {what} would take at least {_duration(total / cores())} on "
             f"{cores()} cores; lowest allowed about {value * total / (TIME_BUDGET_S * cores()):.3g}"
-            f" ({TIME_BUDGET_TEXT} at the fastest measured rates, README Performance)",
+            f" ({TIME_BUDGET_TEXT} at the fastest measured rates, docs/performance.md)",
         )
     check_time(field, total, what, value, total / value)
 
