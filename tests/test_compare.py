@@ -362,6 +362,7 @@ def _all_refused(samples: int = 2) -> pd.DataFrame:
     return pd.DataFrame(rows).reindex(columns=columns)
 
 
+@pytest.mark.slow  # over a second of CPU: out of `make test-fast`
 def test_a_pipeline_that_refuses_every_sample_keeps_its_row(tmp_path):
     """No rate, no error (NaN), the counts kept; off the Pareto front, in the chart's and the
     report's words, leading on nothing but its speed."""

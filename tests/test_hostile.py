@@ -532,6 +532,7 @@ def test_shipped_settings_are_within_the_limits():
     limits.check_frames("frames", 30, lens.width_px, lens.height_px, "full frames")
 
 
+@pytest.mark.slow  # over a second of CPU: out of `make test-fast`
 @pytest.mark.skipif(gpu_present(), reason="this machine has a GPU: cuda_ad_rgb would run")
 @pytest.mark.parametrize(
     "command", ["detectability --quick", "dataset --quick", "bench render", "bench scale"]
