@@ -36,10 +36,10 @@ study: setup
 quick: setup
 	$(BIN)/whiskerbench detectability --quick
 
-# Two pytest-xdist workers (a 2-core machine; TEST_WORKERS=0 runs in one process): the tests
-# of the rendered pair stay on one worker, which renders it once (tests/conftest.py).
+# Two pytest-xdist workers (a 2-core machine; TEST_WORKERS=0 runs in one process); session
+# fixtures such as the rendered pair are built once per worker.
 TEST_WORKERS ?= 2
-TEST_PARALLEL := $(if $(filter 0,$(TEST_WORKERS)),,-n $(TEST_WORKERS) --dist loadgroup)
+TEST_PARALLEL := $(if $(filter 0,$(TEST_WORKERS)),,-n $(TEST_WORKERS) --dist load)
 
 test: setup
 	$(BIN)/pytest -q $(TEST_PARALLEL)

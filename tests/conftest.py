@@ -39,12 +39,3 @@ def rendered_pair(tmp_path_factory, variant, pair_config):
     run_dataset(pair_config, out, variant=variant, progress=False)
     assert (out / pair_config.samples()[1].sample_id).name == "soft-intermediate-100-outdoor-lab"
     return out
-
-
-def pytest_collection_modifyitems(config, items):
-    """Under pytest-xdist (``make test``: ``-n 2 --dist loadgroup``) every test of the rendered
-    pair runs on one worker, so the pair is rendered once, not once per worker (session
-    fixtures are per worker process); without xdist the mark does nothing."""
-    for item in items:
-        if "rendered_pair" in getattr(item, "fixturenames", ()):
-            item.add_marker(pytest.mark.xdist_group("rendered_pair"))
