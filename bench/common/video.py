@@ -43,9 +43,11 @@ from __future__ import annotations
 import errno
 import itertools
 import os
+import queue
 import subprocess
 import tempfile
-from collections.abc import Iterable, Iterator
+import threading
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from typing import IO, NamedTuple
 
@@ -380,6 +382,59 @@ def _downscale(
     small = cv2.resize(frame, size, interpolation=cv2.INTER_AREA)
     factors = np.array([size[0] / width, size[1] / height])
     return small, (np.asarray(corners_px, dtype=float) + 0.5) * factors - 0.5
+
+
+class BackgroundWriter:
+    """Feeds frames to a video writer running in its own thread, so that encoding (ffmpeg's pipe,
+    OpenCV's drawing: both release the GIL) overlaps the caller's next frame.
+
+    ``write`` is called as ``write(frames)`` with an iterable that yields what :meth:`put` is
+    given, e.g. ``lambda frames: write_video(path, frames, fps)``. Used as a context manager: an
+    exception inside the block reaches ``write``'s iterable, so a video writer leaves no file, as
+    if its frames had raised; :attr:`count` is ``write``'s return value after the block.
+    """
+
+    _END = object()
+
+    def __init__(self, write: Callable[[Iterable[np.ndarray]], int], depth: int = 2) -> None:
+        self._write, self._queue = write, queue.Queue(maxsize=depth)
+        self._error: BaseException | None = None
+        self._ended = False
+        self.count = 0
+
+    def __enter__(self) -> BackgroundWriter:
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+        return self
+
+    def _frames(self) -> Iterator[np.ndarray]:
+        while (item := self._queue.get()) is not self._END:
+            if isinstance(item, BaseException):
+                raise item
+            yield item
+        self._ended = True
+
+    def _run(self) -> None:
+        try:
+            self.count = self._write(self._frames())
+        except BaseException as exc:  # handed to the caller's thread in put() or __exit__
+            self._error = exc
+            while not self._ended and self._queue.get() is not self._END:  # until the block ends
+                pass
+
+    def put(self, frame: np.ndarray) -> None:
+        """Queue one frame (waits while ``depth`` frames are waiting); raises the writer's error."""
+        if self._error is not None:
+            raise self._error
+        self._queue.put(frame)
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc is not None and self._error is None:
+            self._queue.put(RuntimeError("the frames' producer failed"))
+        self._queue.put(self._END)
+        self._thread.join()
+        if self._error is not None and exc is None:
+            raise self._error
 
 
 def _even(length: float) -> int:

@@ -45,7 +45,7 @@ def full_frames(
 
     Each frame is rendered once and recorded through one twin per scale, each with the
     sample's noise seed: the frames at two scales differ only in the lens."""
-    from renderers.frames import TwinRecorder
+    from renderers.twin_recorder import TwinRecorder
 
     sample = pick_sample(config)
     sim = simulate_sample(config, sample)
