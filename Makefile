@@ -36,12 +36,17 @@ study: setup
 quick: setup
 	$(BIN)/whiskerbench detectability --quick
 
-test: setup
-	$(BIN)/pytest -q
+# Two pytest-xdist workers (a 2-core machine; TEST_WORKERS=0 runs in one process); session
+# fixtures such as the rendered pair are built once per worker.
+TEST_WORKERS ?= 2
+TEST_PARALLEL := $(if $(filter 0,$(TEST_WORKERS)),,-n $(TEST_WORKERS) --dist load)
 
-# The inner loop: everything but the tests marked slow (rendered datasets, real runs), under a minute.
+test: setup
+	$(BIN)/pytest -q $(TEST_PARALLEL)
+
+# The inner loop: everything but the tests marked slow (rendered datasets, real runs).
 test-fast: setup
-	$(BIN)/pytest -q -m "not slow"
+	$(BIN)/pytest -q -m "not slow" $(TEST_PARALLEL)
 
 bench: setup
 	$(BIN)/whiskerbench bench detectability

@@ -30,7 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.backends import BACKENDS, PoseRequest, check_family, get_backend
+from pipeline.backends import PoseRequest, check_family, get_backend
 from pipeline.backends.isolated import run_backend
 from pipeline.backends.opencv import REFINEMENTS
 from pipeline.refine import TRANSFERS, refine_corners_by_edges
@@ -56,16 +56,16 @@ class DetectorConfig:
     use_aruco3_detection: bool = False
     #: Pixels per code cell when OpenCV reads the bits (its perspectiveRemovePixelPerCell,
     #: default 4). Under a lens blur of about a fifth of a cell, 4 samples per cell misread bits
-    #: (see the detectability study in the README); more samples read the cell's centre.
+    #: (see docs/detectability.md); more samples read the cell's centre.
     cell_px: int = 4
-    #: Which library finds the markers (:data:`pipeline.backends.BACKENDS`).
+    #: Which library finds the markers (:data:`pipeline.backends.BACKENDS`, or a plugin's
+    #: ``plugin:SPEC``, :mod:`pipeline.backends.plugin`).
     backend: str = "opencv"
     #: The curve that encoded the image, for ``"lines"`` (:data:`pipeline.refine.TRANSFERS`).
-    transfer: str = "srgb"
+    transfer: str = "auto"
 
     def __post_init__(self) -> None:
-        if self.backend not in BACKENDS:
-            raise ValueError(f"detector={self.backend!r}: choose from {', '.join(BACKENDS)}")
+        get_backend(self.backend)  # ValueError naming the choices, or why a plugin is refused
         object.__setattr__(self, "dictionary", check_dictionary(self.dictionary))
         check_family(self.backend, self.dictionary)
         allowed = REFINEMENTS if self.backend == "opencv" else PEER_REFINEMENTS
@@ -122,9 +122,10 @@ def detect_markers(
     side = max(camera.width_px, camera.height_px) if camera is not None else max(image.shape)
     pose = None
     if own_pose_size_mm is not None and get_backend(config.backend).own_pose:
+        whole = not offset.any() and image.shape == (camera.height_px, camera.width_px)
         pose = PoseRequest(
             camera.fx_px, camera.fy_px, camera.cx_px - offset[0], camera.cy_px - offset[1],
-            float(own_pose_size_mm),
+            float(own_pose_size_mm), whole,
         )  # fmt: skip
     found = run_backend(np.ascontiguousarray(image), config, side, pose)
     keep = _within_size_limits(found.corners_px, config, side)

@@ -25,12 +25,17 @@ changes, for example ``paper/refine=contour/aruco3=on`` or ``fast/window=3-23-10
     ROI, the full frame only to (re)acquire), AprilTag 3 looks again where a tracked marker was
     lost (``recover``), ``lines`` refines, then the virtual-view pose, integration, fixed
     threshold. Built to be on or beyond every peer's Pareto front (frames/s,
-    marker recall, corner error; the README's comparison). Needs the peers extra.
+    marker recall, corner error; docs/pipelines.md, the comparison). Needs the peers extra.
 ``locus``, ``apriltag``
     The peers (:mod:`pipeline.backends`) as their authors ship them: the full frame, their own
     corners, then this project's virtual-view pose, integration and fixed threshold (the pose
     and branch steps are the robot's; only the detector differs). ``/detector=`` puts any
     preset on another backend, e.g. ``robust/detector=locus`` (locus finds, ``lines`` refines).
+``plugin:SPEC``
+    A user's own detector (:mod:`pipeline.backends.plugin`, ``docs/plugins.md``), run as the
+    peers are: the full frame (the whole of it), its own corners, then the virtual-view pose,
+    integration and fixed threshold; ``/CHOICE=VALUE`` parts follow the SPEC
+    (``plugin:mine:detect/refine=lines``).
 """
 
 from __future__ import annotations
@@ -39,7 +44,7 @@ import dataclasses
 import math
 from dataclasses import dataclass
 
-from pipeline.backends import check_family
+from pipeline.backends import PLUGIN_PREFIX, check_family
 from pipeline.branches import AGGREGATIONS
 from pipeline.detect import DetectorConfig
 from pipeline.pose import POSE_METHODS
@@ -212,15 +217,37 @@ CHOICES = {
 }
 
 
-def get_pipeline(name: str) -> PipelineConfig:
-    """The preset, or the variant a ``PRESET/choice=value/...`` name describes; ValueError
-    (one line, naming the bad part) otherwise."""
+def plugin_pipeline(backend: str) -> PipelineConfig:
+    """The pipeline of a detector plugin ``plugin:SPEC``: as the peers' presets (its own corners
+    on the full frame, virtual-view pose, integration, fixed threshold); ValueError (one line)
+    if the plugin cannot be resolved."""
+    return PipelineConfig(
+        backend, DetectorConfig(corner_refinement="none", backend=backend), Search("full")
+    )
+
+
+def _base(name: str) -> tuple[PipelineConfig, list[str]]:
+    """The preset (or plugin) a variant name starts from, and its ``choice=value`` parts."""
+    if name.startswith(PLUGIN_PREFIX):
+        from pipeline.backends.plugin import split_name
+
+        backend, rest = split_name(name)
+        return plugin_pipeline(backend), rest.split("/")[1:]
     preset, *changes = name.split("/")
     if preset not in PRESETS:
         raise ValueError(
-            f"pipeline {name!r}: unknown preset {preset!r}; choose from {', '.join(PRESETS)}"
+            f"pipeline {name!r}: unknown preset {preset!r}; choose from {', '.join(PRESETS)}, "
+            "or plugin:SPEC (docs/plugins.md)"
         )
-    config = dataclasses.replace(PRESETS[preset], name=name)
+    return PRESETS[preset], changes
+
+
+def get_pipeline(name: str) -> PipelineConfig:
+    """The preset, a plugin's pipeline (``plugin:SPEC``), or the variant a
+    ``PRESET/choice=value/...`` name describes; ValueError (one line, naming the bad part)
+    otherwise."""
+    base, changes = _base(name)
+    config = dataclasses.replace(base, name=name)
     detector: dict = {}  # applied together: a backend and its refinement are one choice
     detector_changes: list[str] = []
     for change in changes:

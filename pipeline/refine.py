@@ -22,23 +22,23 @@ where two straight edges meet, so it is found here from the edges instead:
    (robust to the blur of neighbouring white code bits), white from its own outer half,
    extended with the slope of the light across the edge (the median over the edge, fitted
    beyond half a module outside it, where the edge's blur has ended), so uneven lighting does
-   not bias the area. The halfway crossing nearest the expected edge centres a window of +-2 px
-   in which the edge position is the window's outer end minus the area under the normalized
-   profile. That area is preserved by pixel-area sampling, bilinear reading and
-   any point-symmetric blur or sharpening the window takes in, so the estimate is unbiased
-   whatever the edge's sub-pixel phase; the halfway crossing alone would be off by up to
-   0.09 px.
+   not bias the area; a slope that would take the white to the black level within the profile
+   is the quiet zone ending (a cube's edge, a dark surround), not light, and is not used.
+   The halfway crossing nearest the expected edge centres a window of +-2 px in which the
+   edge position is the window's outer end minus the area under the normalized profile. That
+   area is preserved by pixel-area sampling, bilinear reading and any point-symmetric blur or
+   sharpening the window takes in, so the estimate is unbiased whatever the edge's sub-pixel
+   phase; the halfway crossing alone would be off by up to 0.09 px.
 4. **Lines and corners.** A straight line is fitted to each edge's points (total least
    squares; points beyond 3 robust sigmas of a first fit are dropped) and adjacent lines are
    intersected. Steps 2-4 run twice, the second time around the first pass's corners; the
    corners are then mapped back to fisheye pixels.
 
-Intensities are linearized first (``transfer="srgb"``, the camera response's default transfer
-curve): areas and levels only add up in linear light; taken as linear, sRGB codes put the
-corners 0.1-0.3 px inside. That holds where the blur happened before encoding (the lens, as in
-the camera twin). Blur after encoding (resampling, sharpening, JPEG) is linear in the codes:
-``transfer="linear"`` suits it better, though neither curve is exact when both kinds of blur
-act (tests/test_refine_real.py measures both).
+Intensities are linearized first: areas and levels only add up where the blur was linear.
+Blur before encoding (the lens, as in the camera twin) is linear in light (``"srgb"``); blur
+after it (resampling, sharpening, JPEG) in the codes (``"linear"``); a wrong curve moves the
+corners by 0.1-0.7 px. ``"auto"`` (the default) measures the curve on the marker's own border
+(:mod:`pipeline.refine_curve`; tests/test_refine_real.py measures all three).
 
 Accuracy (corner error against ground truth, px): on noise-free 64-spp renders of the
 detectability study (lab lighting, 200 mm, alpha 0-85 deg, phi 0-60 deg, where OpenCV finds
@@ -48,9 +48,9 @@ median 0.01. Cost: about 1 ms per marker for a 100-px crop, 10x OpenCV's detecti
 
 If refinement fails (too little contrast across an edge, an edge with too few consistent
 points or too much scatter about its line, nearly parallel edges, samples outside the image
-or its circle, or a corner moving more than half a module from where it started) the input
-corners are returned unchanged with the reason, one of :data:`FAILURES`: a bad image never
-raises.
+or its circle, or a corner moving more than three quarters of a module from where it
+started) the input corners are returned unchanged with the reason, one of :data:`FAILURES`:
+a bad image never raises.
 """
 
 from __future__ import annotations
@@ -62,21 +62,18 @@ import cv2
 import numpy as np
 
 from pipeline.pose import virtual_view_rotation
+from pipeline.refine_curve import choose_curve
 from scenes.camera import FisheyeCamera
 
-TRANSFERS = ("srgb", "linear")
+TRANSFERS = ("auto", "srgb", "linear")
 EDGE_SPAN = (0.15, 0.85)  # the part of each edge that is sampled, as fractions of its length
 INNER_MODULES = 0.6  # profile depth inside the black border, in modules
 OUTER_MODULES = 1.0  # profile length into the white quiet zone, in modules
-STEP_PX = 0.5  # largest sample spacing along a profile (virtual pixels, about image pixels)
-ALONG_STEP_PX = 1.0  # spacing of the profiles along an edge
+STEP_PX, ALONG_STEP_PX = 0.5, 1.0  # sample spacing along a profile, profiles along an edge (px)
 MIN_PROFILES, MAX_PROFILES = 6, 64  # per edge
-#: Half-width of the window in which an edge's position is measured. A window widened with
-#: the blur measured from the profiles (4 sigmas) and a light slope fitted per run of profiles
-#: beyond 3 blur sigmas were tried: on 30 full frames of the speed sample (prototype camera,
-#: 13 markers, locus corners) they left 0.121 px median corner error at 20.4 frames/s (ROI
-#: tracking, one core) against 0.100 px at 25-26 frames/s for this window and the per-edge
-#: slope beyond half a module.
+#: Half-width of the window in which an edge's position is measured. A window of 4 blur sigmas
+#: and per-run slopes left 0.121 px median error at 20.4 frames/s on 30 frames of the speed
+#: sample (13 markers) against 0.100 px at 25-26 frames/s for this window.
 WINDOW_PX = 2.0
 RUN_PROFILES = 7  # profiles (odd) that share a black level along an edge
 #: The light's slope across an edge is fitted beyond this many modules outside the edge.
@@ -88,7 +85,9 @@ BLACK_PERCENTILE = 15.0  # of the samples from 0.6 to 0.3 module inside an edge
 MIN_CONTRAST = 0.2  # (white - black) / white, in linear light
 MIN_INLIER_FRACTION = 0.6  # of an edge's profiles, to accept its line
 PASSES = 2
-MAX_SHIFT_MODULES = 0.5  # a corner moving further has latched onto another edge
+#: A corner moving further has latched onto another edge (the code bits are 1 module inside).
+#: Half a module refused OpenCV's corners 3 px off on 35-45 px markers in tests/data/real_markers.
+MAX_SHIFT_MODULES = 0.75
 MIN_MAX_SHIFT_PX = 1.5  # the input corners' own pixel-level error, whatever the size
 
 _SQUARE = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])  # marker, in modules / M
@@ -121,6 +120,7 @@ FAILURES = (
     "edge scatter",  # edge points too far from their line
     "parallel edges",
     "moved too far",  # a corner beyond the shift limit
+    "curve sensitive",  # "auto": the corners depend on the unknown transfer curve
     "numerical error",
 )
 
@@ -246,9 +246,13 @@ def _normalized(
         slope = np.median(
             (values[:, :, c_slope:] * x).sum(axis=2) / (x * x).sum(), axis=1, keepdims=True
         )
-        white = white + slope[..., None] * (np.arange(n_s) - mid)
+        sloped = white + slope[..., None] * (np.arange(n_s) - mid)
+        # Light does not fall to the black level within a module: a slope that reaches it is
+        # the quiet zone ending (a cube's edge, a neighbouring dark patch), not light; the
+        # profile keeps its flat white level.
+        light = (sloped - black[..., None]).min(axis=2) >= MIN_CONTRAST * flat
+        white = np.where(light[..., None], sloped, white)
     contrast = white - black[..., None]
-    ok &= contrast.min(axis=2) > 0
     if np.any(ok.sum(axis=1) < MIN_INLIER_FRACTION * values.shape[1]):
         raise _RefineError("low contrast")
     return (values - black[..., None]) / np.where(ok[..., None], contrast, 1.0), ok
@@ -374,9 +378,19 @@ def _refine(
             raise _RefineError("outside image")
         return px
 
-    patch = LINEAR_LUTS[transfer][codes]
-    for _ in range(PASSES):
-        corners_v = _intersect(*_edge_lines(patch, corners_v, modules, to_patch))
+    def run(patch: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        c = corners_v
+        for _ in range(PASSES):
+            c = _intersect(*_edge_lines(patch, c, modules, to_patch))
+        square = (_SQUARE * modules).astype(np.float32)
+        return c, cv2.getPerspectiveTransform(square, c.astype(np.float32))
+
+    if transfer == "auto":
+        corners_v, failure = choose_curve(codes, LINEAR_LUTS, run, modules, to_patch, _RefineError)
+        if failure is not None:
+            raise _RefineError(failure)
+    else:
+        corners_v = run(LINEAR_LUTS[transfer][codes])[0]
     corners = _to_fisheye(corners_v, camera, R_virt_cam, f_v)
     if not np.isfinite(corners).all():
         raise _RefineError("outside image circle")
@@ -397,7 +411,7 @@ def refine_corners_by_edges(
     modules: int,
     offset_px: tuple[int, int] = (0, 0),
     *,
-    transfer: str = "srgb",
+    transfer: str = "auto",
     max_shift_px: float | None = None,
 ) -> Refinement:
     """Refine a marker's 4 corners from its straight border edges (see the module docstring).
@@ -406,7 +420,7 @@ def refine_corners_by_edges(
     in full-image pixels. ``corners_px``: (4, 2) approximate corners in full-image pixels, ArUco
     order (TL, TR, BR, BL), e.g. OpenCV's with ``CORNER_REFINE_NONE``. ``modules``: modules
     across the black square, markerSize + 2 (6 for a 4x4 dictionary). ``transfer``: the curve
-    that encoded the image, "srgb" or "linear".
+    that encoded the image, "srgb" or "linear", or "auto": measured on the marker.
 
     Returns the (4, 2) float64 corners in full-image pixels, ArUco order. If refinement fails,
     or a corner would move more than ``max_shift_px`` (None: :data:`MAX_SHIFT_MODULES` of the

@@ -112,6 +112,8 @@ def track(
     last: dict[int, np.ndarray] = {}  # marker id -> corners in the previous frame
     since_full = 0
     circle = camera.image_circle_box()  # the "full frame": nothing outside it can be seen
+    if get_backend(detector.backend).whole_frame:  # a plugin: its own pose needs the frame
+        circle = (0, 0, camera.width_px, camera.height_px)
     for f, frame in enumerate(frames):
         n_frames += 1
         if frame.shape[:2] != (camera.height_px, camera.width_px):

@@ -11,7 +11,7 @@ without ``demosaic`` a colour sensor's grey image is its raw mosaic, each pixel 
 Crops are windows of the full frame at ``origin_px`` = (x0, y0): the field angle of every pixel,
 the Bayer phase and the MJPEG block grid all follow the full frame.
 
-Example (per-stage cost, seconds per image, for the README)::
+Example (per-stage cost, seconds per image, for docs/performance.md)::
 
     from scenes.profile import load_profile
     from renderers.camera_twin import stage_costs

@@ -26,6 +26,7 @@ class RayPlan:
     dirs: np.ndarray  # (m, 3) float32 camera-frame directions
     pixel: np.ndarray  # (m,) uint32 flat index into the region
     to_sun: np.ndarray | None  # (m, 3) float32 jittered sun directions, or None
+    first: np.ndarray  # (m,) bool: the pixel's first-pass sample (renderers.frame_passes)
 
 
 def ray_plan(
@@ -40,7 +41,9 @@ def ray_plan(
 
     Zone samples come from their own random stream and are drawn first, so they are the same
     whatever the region (band or full frame). Sample j of pixel (x, y) goes to time sample
-    (j + x + y) mod subframes: every time sample covers the image evenly.
+    (j + x + y) mod subframes: every time sample covers the image evenly. A pixel's first-pass
+    sample is its sample ``(x mod 2 + 2 (y mod 2)) mod spp``: over each 2 x 2 block of pixels the
+    four strata of a stratified 4 spp, at four different time samples.
     """
     streams = np.random.SeedSequence(seed).spawn(2)
     parts = []
@@ -52,6 +55,7 @@ def ray_plan(
         pos = window.sample_positions(spp, rng)  # (h, w, spp, 2)
         xy = np.floor(pos + 0.5).astype(np.int64).reshape(-1, 2)
         slot = np.tile(np.arange(spp), window.width * window.height)
+        first = slot == (xy[:, 0] % 2 + 2 * (xy[:, 1] % 2)) % spp
         keep = np.ones(len(xy), bool)
         if window is region:  # background: only pixels outside the zone
             keep = ~(
@@ -63,12 +67,12 @@ def ray_plan(
         sun = None
         if sun_cone is not None:
             sun = jitter_in_cone(*sun_cone, (len(xy),), rng)[keep]
-        parts.append((pos.reshape(-1, 2)[keep], xy[keep], slot[keep], sun))
-    pos, xy, slot = (np.concatenate([p[i] for p in parts]) for i in range(3))
+        parts.append((pos.reshape(-1, 2)[keep], xy[keep], slot[keep], first[keep], sun))
+    pos, xy, slot, first = (np.concatenate([p[i] for p in parts]) for i in range(4))
     dirs, valid = camera.unproject(pos)
     pixel = (xy[:, 1] - region.y0) * region.width + (xy[:, 0] - region.x0)
     when = (slot + xy[:, 0] + xy[:, 1]) % sampling.subframes
-    sun = np.concatenate([p[3] for p in parts]) if sun_cone is not None else None
+    sun = np.concatenate([p[4] for p in parts]) if sun_cone is not None else None
     plans = []
     for k in range(sampling.subframes):
         pick = valid & (when == k)
@@ -77,6 +81,7 @@ def ray_plan(
                 dirs[pick].astype(np.float32),
                 pixel[pick].astype(np.uint32),
                 None if sun is None else sun[pick].astype(np.float32),
+                first[pick],
             )
         )
     count = np.bincount(pixel[valid], minlength=region.height * region.width)

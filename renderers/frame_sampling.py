@@ -31,7 +31,8 @@ class FrameSampling:
     ``integrator``: ``"direct"`` (sun and unoccluded sky at the first hit) or ``"path"`` (sun
     at every vertex of ``path_depth`` cosine-sampled bounces, the sky occluded along them, the
     unoccluded sky at the last); see :mod:`renderers.frames`. ``path_depth`` is used only by
-    ``"path"``.
+    ``"path"``. ``adaptive``: every pixel's first sample, then its others only near an edge
+    (:mod:`renderers.frame_passes`); False renders every sample of every pixel.
     """
 
     marker_spp: int = 4
@@ -41,11 +42,14 @@ class FrameSampling:
     margin_px: int = 16  # > half the detector's largest threshold window (23 px)
     integrator: str = "direct"
     path_depth: int = 3
+    adaptive: bool = False
 
     def __post_init__(self) -> None:
         for name in ("marker_spp", "background_spp", "subframes"):
             if not (isinstance(getattr(self, name), int) and getattr(self, name) >= 1):
                 raise FieldError(name, f"{getattr(self, name)!r}: must be an integer >= 1")
+        if not isinstance(self.adaptive, bool):
+            raise FieldError("adaptive", f"{self.adaptive!r}: must be true or false")
         if self.margin_px < 0:
             raise FieldError("margin_px", f"{self.margin_px}: must be >= 0")
         check_light_paths(self.integrator, self.path_depth)

@@ -59,18 +59,14 @@ import numpy as np
 import trimesh
 
 from renderers.array_scene import ArrayScene, vegetation_scene
-from renderers.camera_twin import (
-    PIXEL_GAIN_STAGES,
-    STAGES,
-    optical_image,
-    pixel_gain,
-    sensor_images,
-)
+from renderers.camera_twin import pixel_gain
 from renderers.drjit_ops import DrJitOps
+from renderers.frame_passes import Batch, TwoPasses, needs_more
 from renderers.frame_rays import RayPlan, ray_plan
 from renderers.frame_sampling import FrameSampling, marker_region
 from renderers.mitsuba_scene import CanopyScene
 from renderers.sky_irradiance import irradiance_table
+from renderers.twin_recorder import TwinRecorder
 from renderers.variant import jit_variant_active
 from renderers.window import Window
 from scenes.array import ArraySpec
@@ -78,23 +74,10 @@ from scenes.camera import FisheyeCamera
 from scenes.lighting import Lighting
 from scenes.profile import CameraProfile
 
-#: The twin's stages after the per-pixel gain the renderer applies.
-_LENS_STAGES = tuple(s for s in STAGES if s not in PIXEL_GAIN_STAGES)
 SHADOW_EPS_MM = 0.02  # shadow rays start this far off the surface (float32 at ~300 mm: 3e-5)
 
 
 # -- the fixed set of rays -------------------------------------------------------------------
-
-
-@dataclass
-class _Batch:
-    """The rays of one time sample, resident on the Dr.Jit side."""
-
-    dirs: mi.Vector3f
-    pixel: mi.UInt32
-    sky_escape: mi.Color3f  # radiance of the sky seen by rays that hit nothing
-    to_sun: mi.Vector3f | None  # per ray, jittered over the solar disk (canopy shadows)
-    bounce_seed: int  # seeds the bounce directions of "path"
 
 
 @dataclass
@@ -152,6 +135,9 @@ class FrameRenderer:
         # child 2 of the seed: ray_plan draws from children 0 and 1
         bounce_seeds = np.random.SeedSequence(seed).spawn(3)[2].generate_state(len(plans))
         self._batches = [self._batch(p, int(s)) for p, s in zip(plans, bounce_seeds, strict=True)]
+        self._passes, self.rays_traced = None, 0  # rays_traced: summed over renders
+        if sampling.adaptive:
+            self._passes = TwoPasses(self._batches, [p.first for p in plans], self.region.shape)
         self._depth = sampling.path_depth if sampling.integrator == "path" else 0
         # OptiX runs one scene (shader binding table) per kernel: on CUDA, Dr.Jit disables a ray
         # query of a second scene recorded into the same kernel ("more than one OptiX shader
@@ -168,17 +154,19 @@ class FrameRenderer:
 
     @property
     def rays_per_frame(self) -> int:
+        """Samples per frame when every pixel gets all of its own (the planned rays)."""
         return int(self._count.sum())
 
-    def _batch(self, plan: RayPlan, bounce_seed: int) -> _Batch:
+    def _batch(self, plan: RayPlan, bounce_seed: int) -> Batch:
         sky = self.lighting.sky
         escape = sky.radiance(plan.dirs.astype(float))[:, None] * np.asarray(sky.color)
-        return _Batch(
+        return Batch(
             mi.Vector3f(plan.dirs.T),
             mi.UInt32(plan.pixel),
             mi.Color3f(escape.T.astype(np.float32)),
             None if plan.to_sun is None else mi.Vector3f(plan.to_sun.T),
             bounce_seed,
+            dr.arange(mi.UInt32, len(plan.pixel)),
         )
 
     def _setup_shading(self) -> None:
@@ -214,20 +202,61 @@ class FrameRenderer:
                 f"need angles ({k}, {self.spec.n_whiskers}, 2) and offsets ({k}, 2), got "
                 f"{angles_rad.shape} and {offsets_mm.shape}"
             )
-        total = dr.zeros(mi.Float, self.region.height * self.region.width * 3)
-        for batch, angles, offset in zip(self._batches, angles_rad, offsets_mm, strict=True):
-            self.array.set_angles(angles)
-            shift = dr.opaque(mi.Vector3f, [float(offset[0]), 0.0, float(offset[1])])
-            rgb = self._shade(batch, shift)
-            for i in range(3):  # interleaved: (H, W, 3) once reshaped
-                dr.scatter_reduce(dr.ReduceOp.Add, total, rgb[i], batch.pixel * 3 + i)
-            dr.eval(total)  # before the next time sample moves the array
-        total /= dr.gather(mi.Float, self._divisor, self._channel_pixel)
+        shifts = [dr.opaque(mi.Vector3f, [float(x), 0.0, float(z)]) for x, z in offsets_mm]
+        if self._passes is None:
+            total, divisor = self._one_pass(angles_rad, shifts), self._divisor
+        else:
+            total, divisor = self._two_passes(angles_rad, shifts)
+        total /= dr.gather(mi.Float, divisor, self._channel_pixel)
         if self._gain is not None:
             total *= dr.gather(mi.Float, self._gain, self._channel_pixel)
         return total.numpy().reshape(*self.region.shape, 3)
 
-    def _shade(self, batch: _Batch, shift: mi.Vector3f) -> mi.Color3f:
+    def _add(self, total: mi.Float, rgb: mi.Color3f, batch: Batch) -> None:
+        for i in range(3):  # interleaved: (H, W, 3) once reshaped
+            dr.scatter_reduce(dr.ReduceOp.Add, total, rgb[i], batch.pixel * 3 + i)
+
+    def _one_pass(self, angles_rad: np.ndarray, shifts: list) -> mi.Float:
+        """Each pixel's sum over all its samples, (H * W * 3,)."""
+        total = dr.zeros(mi.Float, self.region.height * self.region.width * 3)
+        for batch, angles, shift in zip(self._batches, angles_rad, shifts, strict=True):
+            self.array.set_angles(angles)
+            self._add(total, self._shade(batch, shift), batch)
+            dr.eval(total)  # before the next time sample moves the array
+        self.rays_traced += self.rays_per_frame
+        return total
+
+    def _two_passes(self, angles_rad: np.ndarray, shifts: list) -> tuple[mi.Float, mi.Float]:
+        """Each pixel's sum over its first sample, or all its samples where the first pass shows
+        an edge nearby (:mod:`renderers.frame_passes`), and the number of samples summed."""
+        passes, size = self._passes, self.region.height * self.region.width * 3
+        first, first_rgb = dr.zeros(mi.Float, size), []
+        for batch, angles, shift in zip(passes.first, angles_rad, shifts, strict=True):
+            self.array.set_angles(angles)
+            first_rgb.append(self._shade(batch, shift))
+            self._add(first, first_rgb[-1], batch)
+            dr.eval(first, first_rgb[-1])
+        image = first.numpy().reshape(*self.region.shape, 3)
+        image /= np.maximum(passes.first_count, 1)[..., None]
+        band_rows = slice(
+            self.band.y0 - self.region.y0, self.band.y0 - self.region.y0 + self.band.height
+        )
+        flags = (needs_more(image, band_rows) & (self._count > passes.first_count)) | (
+            passes.first_count == 0
+        )
+        total, flat = dr.zeros(mi.Float, size), flags.ravel()
+        for j, (angles, shift) in enumerate(zip(angles_rad, shifts, strict=True)):
+            self._add(total, first_rgb[j], passes.first[j])  # in time-sample order, as one pass
+            rest = passes.rest(j, self._batches[j], flat)
+            if rest is not None:
+                self.array.set_angles(angles)
+                self._add(total, self._shade(rest, shift), rest)
+            dr.eval(total)
+        count = np.where(flags, self._count, passes.first_count)
+        self.rays_traced += int(count.sum())
+        return total, mi.Float(np.maximum(count, 1).ravel().astype(np.float32))
+
+    def _shade(self, batch: Batch, shift: mi.Vector3f) -> mi.Color3f:
         """RGB radiance of each ray: its first hit lit by sun and sky, plus, for "path", the
         light its bounces gather (one kernel: the loop over the few bounces is unrolled)."""
         v = self._nearest(mi.Point3f(0.0), batch.dirs, shift, True)
@@ -235,7 +264,7 @@ class FrameRenderer:
         if self._depth == 0:
             return rgb
         n = dr.width(batch.pixel)
-        rng = mi.PCG32(n, batch.bounce_seed, dr.arange(mi.UInt64, n))
+        rng = mi.PCG32(n, batch.bounce_seed, mi.UInt64(batch.index))
         beta = mi.Color3f(1.0)  # path throughput
         for bounce in range(1, self._depth + 1):
             active = v.hit & (dr.max(v.albedo) > 0)
@@ -277,7 +306,7 @@ class FrameRenderer:
         p_cam = dr.select(near_a, si_a.p, si_v.p - shift)
         return _Vertex(si_a.is_valid() | si_v.is_valid(), p_cam, normal, albedo, sun_f)
 
-    def _light(self, v: _Vertex, shift: mi.Vector3f, batch: _Batch, sky: bool) -> mi.Color3f:
+    def _light(self, v: _Vertex, shift: mi.Vector3f, batch: Batch, sky: bool) -> mi.Color3f:
         """Light a vertex sends back along its ray: the sun, and with ``sky`` the unoccluded
         sky (shadow rays leave only points that face the sun: work masked off costs little in a
         vectorized kernel)."""
@@ -307,7 +336,7 @@ class FrameRenderer:
         normal = dr.select(front, si.sh_frame.n, mi.Vector3f(0.0, 0.0, 1.0))
         return normal, dr.select(front, albedo, 0.0), dr.select(front, sun_f, 0.0)
 
-    def _sun_visible(self, p_cam, normal, shift, batch: _Batch, active) -> mi.Float:
+    def _sun_visible(self, p_cam, normal, shift, batch: Batch, active) -> mi.Float:
         """1 where the sun reaches the point past the array, the vegetation and the canopy."""
         to_sun = self._sun[0]
         origin = p_cam + normal * SHADOW_EPS_MM
@@ -320,60 +349,6 @@ class FrameRenderer:
                 self.canopy.ray_test(mi.Ray3f(origin + shift, batch.to_sun), active & ~blocked)
             )
         return dr.select(blocked, 0.0, 1.0)
-
-
-class TwinRecorder:
-    """A region's radiance recorded through one camera twin as the camera's 8-bit grey frame,
-    with the seconds spent in the optics and in the sensor.
-
-    The optics run once over the region; the band's sensor noise comes from its own stream, so a
-    band frame and a full frame of the same sample hold identical pixels wherever their optical
-    images agree (the band starts on the stream's block grid). Kept apart from the renderer so
-    that one render can be recorded through several twins (the fidelity ladder's stage rungs).
-    """
-
-    def __init__(
-        self, profile: CameraProfile, region: Window, band: Window, exposure: float, noise_seed: int
-    ) -> None:
-        """``exposure``: linear radiance to sensor full scale, the lighting's factor included."""
-        self.profile, self.region, self.band, self.exposure = profile, region, band, exposure
-        self.rng_band, self.rng_rest = (
-            np.random.default_rng(s) for s in np.random.SeedSequence(noise_seed).spawn(2)
-        )
-        self.optics_s = self.sensor_s = 0.0
-
-    def _sensor(self, irradiance: np.ndarray, window: Window, rng: np.random.Generator):
-        origin = (window.x0, window.y0)
-        return sensor_images(irradiance, self.profile, rng, 1, origin, self.exposure)[0]
-
-    def record(self, radiance: np.ndarray) -> np.ndarray:
-        """The frame (H, W) of the region's radiance (:meth:`FrameRecorder.radiance`): black
-        outside the region."""
-        return self.expose(self.optics(radiance))
-
-    def optics(self, radiance: np.ndarray) -> np.ndarray:
-        """The region's sensor irradiance: the lens stages, deterministic (a still scene's
-        images share it; :meth:`expose` draws each one's noise)."""
-        t0 = time.perf_counter()
-        region = self.region
-        irradiance = optical_image(radiance, self.profile, (region.x0, region.y0), _LENS_STAGES)
-        self.optics_s += time.perf_counter() - t0
-        return irradiance
-
-    def expose(self, irradiance: np.ndarray) -> np.ndarray:
-        """One frame (H, W) of the region's irradiance (:meth:`optics`) through the sensor and
-        stream, with this recorder's next noise; black outside the region."""
-        t0 = time.perf_counter()
-        lens, region, band = self.profile.lens, self.region, self.band
-        image = np.zeros((lens.height_px, lens.width_px), np.uint8)
-        if region != band:
-            image[region.y0 : region.y0 + region.height, region.x0 : region.x0 + region.width] = (
-                self._sensor(irradiance, region, self.rng_rest)
-            )
-        rows = slice(band.y0 - region.y0, band.y0 - region.y0 + band.height)
-        image[band.y0 : band.y0 + band.height] = self._sensor(irradiance[rows], band, self.rng_band)
-        self.sensor_s += time.perf_counter() - t0
-        return image
 
 
 class FrameRecorder:

@@ -37,7 +37,6 @@ The layouts follow each tool's own reader or writer:
 
 from __future__ import annotations
 
-import json
 import math
 from collections.abc import Callable
 from pathlib import Path
@@ -46,11 +45,19 @@ from typing import Any
 import numpy as np
 import yaml
 
+from scenes.bounded_read import (
+    BoundedReadError,
+    BoundedSafeLoader,
+    BoundedYamlError,
+    parse_json,
+    read_bounded_text,
+)
 from scenes.camera import FisheyeCamera
+from scenes.input_limits import SETTINGS_BYTES, SETTINGS_DEPTH, YAML_NODES
 
 FORMATS = ("kalibr", "basalt", "ocamcalib", "opencv")
 #: Largest calibration file read: real ones are a few kB; this bounds memory on a hostile input.
-MAX_FILE_BYTES = 1 << 20
+MAX_FILE_BYTES = SETTINGS_BYTES
 KALIBR_SUPPORTED = ("pinhole-equidistant", "ds-none", "eucm-none", "omni-none")
 BASALT_TYPES = {
     "kb4": ("kannala_brandt", ("k1", "k2", "k3", "k4")),
@@ -110,12 +117,17 @@ def import_calibration(
 def _read_text(path: Path) -> str:
     if not path.is_file():
         raise CalibrationError(path, "file", "not a readable file")
-    if path.stat().st_size > MAX_FILE_BYTES:
-        raise CalibrationError(path, "file", f"larger than {MAX_FILE_BYTES} bytes")
     try:
-        return path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise CalibrationError(path, "file", f"cannot be read as UTF-8 text ({exc})") from None
+        return read_bounded_text(path, MAX_FILE_BYTES)
+    except BoundedReadError as exc:
+        raise CalibrationError(path, "file", f"cannot be read as UTF-8 text: {exc}") from None
+
+
+def _json(path: Path, text: str) -> Any:
+    try:
+        return parse_json(text, SETTINGS_DEPTH)
+    except BoundedReadError as exc:
+        raise CalibrationError(path, "file", str(exc)) from None
 
 
 def _numbers(path: Path, field_name: str, value: Any, count: int | None = None) -> list[float]:
@@ -185,6 +197,8 @@ def _camera(
 def _yaml(path: Path, text: str) -> Any:
     try:
         return yaml.load(text, Loader=_OpenCVLoader)  # a SafeLoader: plain data only
+    except BoundedYamlError as exc:  # an alias, too many nodes, too deep
+        raise CalibrationError(path, "file", f"refused YAML: {exc}") from None
     except yaml.YAMLError as exc:
         where = getattr(exc, "problem_mark", None)
         line = f" at line {where.line + 1}" if where is not None else ""
@@ -231,10 +245,7 @@ def _kalibr(path: Path, text: str, index: int) -> tuple[str, Intrinsics]:
 
 
 def _basalt(path: Path, text: str, index: int) -> tuple[str, Intrinsics]:
-    try:
-        data = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise CalibrationError(path, "file", f"not valid JSON ({exc})") from None
+    data = _json(path, text)
     root = _mapping(path, "value0", _mapping(path, "file", data).get("value0"))
     cams, sizes = root.get("intrinsics"), root.get("resolution")
     if not isinstance(cams, list) or not cams:
@@ -314,8 +325,13 @@ def _int(value: float) -> int | float:
 # --- OpenCV -----------------------------------------------------------------------------------
 
 
-class _OpenCVLoader(yaml.SafeLoader):
-    """YAML as cv2.FileStorage writes it: ``!!opencv-matrix`` mappings read as plain mappings."""
+class _OpenCVLoader(BoundedSafeLoader):
+    """YAML as cv2.FileStorage writes it: ``!!opencv-matrix`` mappings read as plain mappings;
+    no aliases, at most :data:`~scenes.input_limits.YAML_NODES` nodes nested
+    :data:`~scenes.input_limits.SETTINGS_DEPTH` deep."""
+
+    max_nodes = YAML_NODES
+    max_depth = SETTINGS_DEPTH
 
 
 _OpenCVLoader.add_constructor(
@@ -332,10 +348,7 @@ def _matrix(path: Path, field_name: str, value: Any, count: int) -> np.ndarray:
 
 def _opencv(path: Path, text: str, index: int) -> tuple[str, Intrinsics]:
     if text.lstrip().startswith("{"):
-        try:
-            data = json.loads(text)
-        except json.JSONDecodeError as exc:
-            raise CalibrationError(path, "file", f"not valid JSON ({exc})") from None
+        data = _json(path, text)
     else:  # cv2.FileStorage writes a "%YAML:1.0" directive that YAML 1.1 parsers refuse
         body = "\n".join(ln for ln in text.splitlines() if not ln.startswith("%YAML"))
         data = _yaml(path, body)

@@ -37,7 +37,7 @@ class MotionSpec:
     fps: float = 15.0
     #: Held still before the approach, where the pipeline takes its no-contact pose. An estimate:
     #: SPEC gives no lead-in; the indoor grid shows what 1 s does with the prototype camera
-    #: (README, "The indoor default grid").
+    #: (docs/datasets.md, "The indoor default grid").
     lead_in_s: float = 1.0
     approach_mm: float = 150.0
     approach_speed_mm_s: float = 50.0

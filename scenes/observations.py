@@ -31,6 +31,7 @@ from pathlib import Path
 from typing import Any
 
 from scenes.camera import FisheyeCamera
+from scenes.input_limits import SETTINGS_BYTES
 from scenes.marker import check_dictionary
 from scenes.study import MAX_PHI_DEG
 from scenes.validation import FieldError, read_small_json
@@ -40,7 +41,7 @@ VERSION = 1
 OBSERVATIONS_DIR = Path(__file__).with_name("observations")
 KINDS = ("marker", "array_rest", "array_sampling")
 #: Largest observations file read: real ones are a few kB.
-MAX_BYTES = 1 << 20
+MAX_BYTES = SETTINGS_BYTES
 #: Most observations, alternatives and region cells: each one costs renders in calibration.
 MAX_OBSERVATIONS = 32
 MAX_ALTERNATIVES = 4

@@ -23,6 +23,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from scenes.camera import FisheyeCamera, default_camera
+from scenes.input_limits import SETTINGS_BYTES
 from scenes.validation import FieldError, read_small_json
 
 FORMAT = "whiskerbench-camera-profile"
@@ -421,7 +422,7 @@ def shipped_profiles() -> tuple[str, ...]:
 
 
 #: Largest profile file read: real ones are a few kB; this bounds memory on a hostile input.
-MAX_PROFILE_BYTES = 1 << 20
+MAX_PROFILE_BYTES = SETTINGS_BYTES
 
 
 def profile_path(name_or_path: str | Path) -> Path:

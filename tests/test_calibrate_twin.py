@@ -271,6 +271,7 @@ def test_out_may_not_be_an_input(tmp_path, capsys):
     )
 
 
+@pytest.mark.slow  # over a second of CPU: out of `make test-fast`
 def test_check_prints_each_unit_at_each_band_level(tmp_path, capsys):
     path = observations_file(tmp_path, marker("reads", 13.2, 0.95))
     assert main(["camera", "check", "prototype", "--observations", str(path)]) == 0

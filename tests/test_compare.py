@@ -9,7 +9,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from bench.evaluate.compare import pareto_front
+from bench.evaluate.pareto import pareto_front
 from pipeline.presets import PRESETS, get_pipeline
 
 
@@ -32,9 +32,10 @@ def test_compare_writes_a_report_with_every_variant(rendered_pair, tmp_path):
     )
     variants = [PRESETS["paper"], get_pipeline("fast/window=3-23-10")]
     out = tmp_path / "report"
-    summary = run_compare(rendered_pair, variants, out, sweep, speed_frames=3, speed_seconds=0.0)
+    summary = run_compare(rendered_pair, variants, out, sweep, speed_frames=12, speed_rounds=3)
     assert summary["pipeline"].tolist() == ["paper", "fast/window=3-23-10"]
     assert (summary["fps"] > 0).all() and (summary["samples"] == 2).all()
+    _check_the_speed(rendered_pair, out, summary, [v.name for v in variants])
     paper = summary.iloc[0]
     assert paper["correct_rate"] == 1.0 and paper["recall"] > 0.98
     report = (out / "report.md").read_text()
@@ -63,6 +64,33 @@ def test_compare_writes_a_report_with_every_variant(rendered_pair, tmp_path):
     assert {"sweeps_band_ends.csv", "boundaries_band_ends.csv"} <= set(manifest["outputs"])
     assert str(rendered_pair / "manifest.json") in manifest["inputs"]
     _check_the_band(out, sweep, sweeps, len(variants))
+
+
+def _check_the_speed(dataset, out, summary: pd.DataFrame, names: list[str]) -> None:
+    """Timed on the dataset's own frames, alternating over the rounds asked for; the median
+    inside its spread; leaders.csv and the report say whether the speed lead is within it."""
+    from bench.dataset.loader import open_dataset
+
+    ds = open_dataset(dataset)
+    frames = pd.read_csv(out / "speed_frames.csv")
+    assert set(frames["sample_id"]) == set(ds.sample_ids)  # 2 runs (10 and 2): one a sample
+    for row in frames.itertuples():
+        assert 0 <= row.frame < len(ds[row.sample_id])
+    assert frames["timed"].sum() == 12
+    rounds = pd.read_csv(out / "speed_rounds.csv")
+    assert [rounds[rounds["round"] == r]["pipeline"].tolist() for r in range(3)] == [
+        names, names[::-1], names
+    ]  # fmt: skip
+    assert (summary["speed_rounds"] == 3).all()
+    assert (summary["fps_min"] <= summary["fps"]).all()
+    assert (summary["fps"] <= summary["fps_max"]).all()
+    fps = pd.read_csv(out / "leaders.csv").set_index("measure").loc["fps"]
+    leader = summary.set_index("pipeline").loc[fps["leader"]]
+    other = summary.set_index("pipeline").drop(fps["leader"]).iloc[0]
+    assert fps["lead_within_spread"] == (other["fps_max"] >= leader["fps_min"])
+    report = (out / "report.md").read_text()
+    assert "Frames/s: 12 frames of this dataset, in 2 runs" in report
+    assert f"The speed lead of {fps['leader']}: " in report
 
 
 def _check_the_band(out, sweep, sweeps: pd.DataFrame, pipelines: int) -> None:
@@ -107,7 +135,7 @@ def _check_the_band(out, sweep, sweeps: pd.DataFrame, pipelines: int) -> None:
 def test_the_sweeps_use_the_datasets_camera_unless_told(rendered_pair, tmp_path):
     import pytest
 
-    from bench.cli.evaluate import _sweep_camera
+    from bench.cli.compare import _sweep_camera
     from bench.cli.main import main
 
     assert _sweep_camera(None, rendered_pair).name == "ideal"  # what the pair was rendered with
@@ -275,7 +303,7 @@ def test_compare_refuses_a_missing_peer_in_one_line(monkeypatch, tmp_path, capsy
 
 
 def test_without_peers_the_default_pipelines_are_the_opencv_presets(monkeypatch):
-    from bench.cli.evaluate import _installed_presets
+    from bench.cli.compare import _installed_presets
 
     _without_peers(monkeypatch)
     names = [p.name for p in _installed_presets()]
@@ -308,7 +336,7 @@ def test_a_peer_runs_in_every_part_of_compare(rendered_pair, tmp_path):
     )  # fmt: skip
     out = tmp_path / "report"
     variants = [PRESETS["paper"], PRESETS["locus"]]
-    summary = run_compare(rendered_pair, variants, out, sweep, speed_frames=2, speed_seconds=0.0)
+    summary = run_compare(rendered_pair, variants, out, sweep, speed_frames=2, speed_rounds=3)
     locus = summary.set_index("pipeline").loc["locus"]
     assert locus["fps"] > 0 and locus["recall"] > 0.9 and np.isfinite(locus["own_rot_err_deg"])
     sweeps = pd.read_csv(out / "sweeps.csv").set_index("pipeline")
@@ -334,11 +362,14 @@ def _all_refused(samples: int = 2) -> pd.DataFrame:
     return pd.DataFrame(rows).reindex(columns=columns)
 
 
+@pytest.mark.slow  # over a second of CPU: out of `make test-fast`
 def test_a_pipeline_that_refuses_every_sample_keeps_its_row(tmp_path):
     """No rate, no error (NaN), the counts kept; off the Pareto front, in the chart's and the
     report's words, leading on nothing but its speed."""
-    from bench.evaluate.compare import plot_pareto, refused_lines, summarize
+    from bench.evaluate.compare import summarize
+    from bench.evaluate.compare_report import refused_lines
     from bench.evaluate.leaders import leaders
+    from bench.evaluate.pareto import plot_pareto
 
     row = summarize("naive", _all_refused())
     assert (row["samples"], row["refused_samples"]) == (2, 2)
@@ -393,6 +424,7 @@ def test_score_and_compare_report_a_pipeline_that_refuses_every_sample(
     assert main(["score", str(dataset), "--pipeline", "naive", "--out", str(tmp_path / "s")]) == 0
     out, err = capsys.readouterr()
     assert "2 samples, 2 refused: no rates;" in out and err.count("refused: no no-contact") == 2
+    assert "note: naive refused 2 of 2 samples" in out and f"{tmp_path / 's'}/samples.csv" in out
     table = pd.read_csv(tmp_path / "s" / "samples.csv")
     assert set(SCORED_COLUMNS) <= set(table) and (table["outcome"] == "refused").all()
 
@@ -401,13 +433,17 @@ def test_score_and_compare_report_a_pipeline_that_refuses_every_sample(
         blur_px=(0.0,), read_noise_e=(3.0,), seeds=1, images=2,
     )  # fmt: skip
     monkeypatch.setattr(sweep_config, "QUICK_SWEEP", tiny)
-    monkeypatch.setattr("bench.evaluate.compare.full_frames", lambda config, n: ({1.0: []}, None))
-    monkeypatch.setattr("bench.evaluate.compare.time_pipeline", lambda *a: (10.0, None))
+    monkeypatch.setattr(
+        "bench.evaluate.compare.time_pipelines", lambda runs, named, rounds: _timing(named, 10.0)
+    )
     report = tmp_path / "report"
     argv = ["compare", str(dataset), "--pipelines", "paper,naive", "--quick", "--out", str(report)]
-    assert main(argv) == 0
+    assert main([*argv, "--speed-frames", "2", "--speed-rounds", "3"]) == 0
     out = capsys.readouterr().out
-    assert "naive:    10.0 frames/s, refused all 2 samples, no rates" in out
+    assert "naive:    10.0 frames/s (9.0-11.0), refused all 2 samples, no rates" in out
+    assert "speed lead of paper, naive: a tie, within the spread across rounds" in out
+    assert f"refused_reason in {dataset / 'scores' / 'naive' / 'samples.csv'}" in out
+    assert "note: paper" not in out  # it refused nothing and read the markers
     summary = pd.read_csv(report / "summary.csv").set_index("pipeline")
     assert summary.loc["naive", ["samples", "refused_samples"]].tolist() == [2, 2]
     assert np.isnan(summary.loc["naive", "correct_rate"]) and summary.loc["paper", "recall"] > 0.9
@@ -417,3 +453,13 @@ def test_score_and_compare_report_a_pipeline_that_refuses_every_sample(
     assert "- naive: refused all 2 samples" in (report / "report.md").read_text()
     leads = pd.read_csv(report / "leaders.csv").set_index("measure")
     assert leads.loc["fps", "leader"] == "paper, naive" and leads.loc["recall", "leader"] == "paper"
+
+
+def _timing(pipelines, fps: float):
+    """Three rounds at ``fps`` - 1, ``fps`` and ``fps`` + 1 for every pipeline, in place of
+    ``compare``'s timing."""
+    from bench.evaluate.timing import ROUND_COLUMNS, Timing
+
+    rows = [(r, p, name, 10, 10 / (fps - 1 + r), fps - 1 + r) for r in range(3)
+            for p, name in enumerate(pipelines)]  # fmt: skip
+    return Timing(pd.DataFrame(rows, columns=list(ROUND_COLUMNS)), {n: [] for n in pipelines})

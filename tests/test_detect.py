@@ -52,12 +52,23 @@ def test_every_preset_runs_and_paper_finds_the_branch(sample_video, tmp_path, na
 
 
 def _run(*args: str) -> subprocess.CompletedProcess:
+    """``whiskerbench detect`` as a user runs it: a process of its own (the exit code reaches
+    the shell). The other tests call :func:`_detect`, the same command in this process."""
     return subprocess.run(
         [sys.executable, "-m", "bench.cli", "detect", *args],
         capture_output=True,
         text=True,
         timeout=120,
     )
+
+
+def _detect(capsys, *args: str) -> tuple[int, str]:
+    """``whiskerbench detect`` in this process: (exit code, stderr)."""
+    from bench.cli.main import main
+
+    capsys.readouterr()
+    code = main(["detect", *args])
+    return code, capsys.readouterr().err
 
 
 @pytest.mark.slow
@@ -110,7 +121,7 @@ def _cut(sample_video, tmp_path, frames) -> tuple:
 
 
 @pytest.mark.slow
-def test_a_video_that_starts_in_contact_is_refused(sample_video, tmp_path) -> None:
+def test_a_video_that_starts_in_contact_is_refused(sample_video, tmp_path, capsys) -> None:
     labels = pd.read_parquet(sample_video / "labels.parquet")
     deflection = labels.pivot(index="frame", columns="whisker", values="deflection_mm").to_numpy()
     window = 10
@@ -121,16 +132,16 @@ def test_a_video_that_starts_in_contact_is_refused(sample_video, tmp_path) -> No
     start = int(np.argmax(rise))
     assert rise[start] > 2.0  # the labels say a whisker moves 2+ mm in those frames
     video, camera = _cut(sample_video, tmp_path, range(start, start + 30))
-    run = _run(str(video), "--camera", str(camera), "--out", str(tmp_path / "o"))
-    assert run.returncode == 2 and len(run.stderr.strip().splitlines()) == 1
-    assert "no no-contact frames" in run.stderr and not (tmp_path / "o").exists()
+    code, err = _detect(capsys, str(video), "--camera", str(camera), "--out", str(tmp_path / "o"))
+    assert code == 2 and len(err.strip().splitlines()) == 1
+    assert "no no-contact frames" in err and not (tmp_path / "o").exists()
     # the same video from its free-air start is fine
     fine, _ = _cut(sample_video, tmp_path, range(0, start + 30))
-    assert _run(str(fine), "--camera", str(camera), "--out", str(tmp_path / "p")).returncode == 0
+    assert _detect(capsys, str(fine), "--camera", str(camera), "--out", str(tmp_path / "p"))[0] == 0
 
 
 @pytest.mark.slow
-def test_a_camera_file_of_another_size_is_refused(sample_video, tmp_path) -> None:
+def test_a_camera_file_of_another_size_is_refused(sample_video, tmp_path, capsys) -> None:
     from scenes.profile import load_profile
 
     profile = load_profile(sample_video / "camera.json")
@@ -139,13 +150,13 @@ def test_a_camera_file_of_another_size_is_refused(sample_video, tmp_path) -> Non
     )
     (tmp_path / "small.json").write_text(json.dumps(small.to_json()))
     video, _ = _cut(sample_video, tmp_path, range(12))
-    run = _run(str(video), "--camera", str(tmp_path / "small.json"))
-    assert run.returncode == 2 and len(run.stderr.strip().splitlines()) == 1
-    assert "2592x1944 px but the camera model is 1296x972" in run.stderr
+    code, err = _detect(capsys, str(video), "--camera", str(tmp_path / "small.json"))
+    assert code == 2 and len(err.strip().splitlines()) == 1
+    assert "2592x1944 px but the camera model is 1296x972" in err
 
 
 @pytest.mark.slow
-def test_a_marker_never_seen_is_reported(sample_video, tmp_path) -> None:
+def test_a_marker_never_seen_is_reported(sample_video, tmp_path, capsys) -> None:
     """Black out whisker 0's marker in every frame: the estimate goes on and says so."""
     import itertools
 
@@ -165,11 +176,10 @@ def test_a_marker_never_seen_is_reported(sample_video, tmp_path) -> None:
 
     video = tmp_path / "hidden.mp4"
     write_video(video, hidden(itertools.islice(read_video(sample_video / "video.mp4"), 40)), 15.0)
-    run = _run(
-        str(video), "--camera", str(sample_video / "camera.json"), "--out", str(tmp_path / "o")
-    )
-    assert run.returncode == 0
-    assert "markers of whiskers [0] never seen" in run.stderr
+    camera = str(sample_video / "camera.json")
+    code, err = _detect(capsys, str(video), "--camera", camera, "--out", str(tmp_path / "o"))
+    assert code == 0
+    assert "markers of whiskers [0] never seen" in err
     assert json.loads((tmp_path / "o" / "branches.json").read_text())["unseen_markers"] == [0]
 
 

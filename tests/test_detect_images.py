@@ -219,7 +219,7 @@ def hostile(photos, tmp_path):
 
 IMAGES = "{photos}/images"
 REFUSED = [
-    ("{t}/deep.png --pipelines paper", r"deep\.png: uint16 pixels: refused"),
+    ("{t}/deep.png --pipelines paper", r"deep\.png: PNG of .* 16-bit samples: refused"),
     ("{t}/text.png --pipelines paper", r"text\.png: not a readable image"),
     ("{t}/empty --pipelines paper", r"empty: no images"),
     (IMAGES + " {t}/again --pipelines paper", r"a\.png: 2 images have this file name"),
@@ -262,7 +262,10 @@ def test_refused(line, pattern, photos, hostile, capsys, monkeypatch):
 
 @pytest.mark.parametrize(
     "limit, value, pattern",
-    [("MAX_IMAGE_PIXELS", 1000, r"a\.png: 360 x 240 px is over"), ("MAX_IMAGES", 2, r"over 2")],
+    [
+        ("MAX_IMAGE_PIXELS", 1000, r"a\.png: PNG of 360 x 240 px is over"),
+        ("MAX_IMAGES", 2, r"over 2"),
+    ],
 )
 def test_limits(limit, value, pattern, photos, tmp_path, capsys, monkeypatch):
     monkeypatch.setattr(job, limit, value)

@@ -75,6 +75,7 @@ def test_a_released_whisker_rings_where_quasi_static_snaps_back():
     assert np.all(quasi[released + 1 :] == 0.0)
 
 
+@pytest.mark.slow  # over a second of CPU: out of `make test-fast`
 def test_halving_the_step_changes_the_angles_little():
     strips = [CompliantContact(x, BASE_Z + 90.0, 2e-3, 0.02, 10.0, 0.2) for x in (-30, 5, 40)]
     t = np.arange(0.0, 2.5, 1 / 75)  # 15 fps with 4 subframes, plus the timestamp
@@ -88,6 +89,7 @@ def test_halving_the_step_changes_the_angles_little():
     assert np.abs(fine.angles_rad - coarse.angles_rad).max() < 5e-3
 
 
+@pytest.mark.slow  # over a second of CPU: out of `make test-fast`
 def test_slow_motion_approaches_quasi_static_away_from_releases():
     t = np.arange(0.0, 7.5, 0.05)
     x = 4.0 * t - 5.0  # 4 mm/s, the indoor speed: from -5 to +25 mm

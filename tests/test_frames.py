@@ -114,6 +114,7 @@ def test_frames_are_rgb_and_the_sky_has_its_colour(renderers) -> None:
     assert np.ptp(np.asarray(sky.color)) > 0.1  # a test that could tell channels apart
 
 
+@pytest.mark.slow  # over a second of CPU: out of `make test-fast`
 def test_pixel_gain_is_applied_per_pixel_on_the_drjit_side(variant) -> None:
     """A renderer given a per-pixel gain returns its plain frame times that gain, to float32
     rounding (the recorder folds the twin's relative illumination and image circle in so)."""

@@ -215,7 +215,9 @@ CASES: list[tuple[str, str]] = [
     ("dataset --amplitude=1e9", r"--amplitude.*\(0, 1000\]"),
     ("dataset --passes=0", r"--passes.*>= 1"),
     ("dataset --passes=1000000", r"--passes.*GiB.*limit about"),
-    ("dataset --fps=1e9", r"--exposure-ms.*one frame"),
+    ("dataset --passes=800", r"--passes: 800: .*would take .*days.*limit \d+"),  # not --spp
+    ("dataset --fps=1e9", r"--fps: 1e\+09: one frame lasts 1e-06 ms, shorter than the default"),
+    ("dataset --fps=1e9 --exposure-ms=8", r"--exposure-ms.*one frame"),
     ("dataset --exposure-ms=nan", r"--exposure-ms"),
     ("dataset --spp=100000000", r"--spp.*would take.*limit \d+"),
     ("dataset --subframes=0", r"--subframes.*>= 1"),
@@ -328,7 +330,7 @@ CASES: list[tuple[str, str]] = [
     ),  # fmt: skip
     ("detect-images {fx}/afile --pipelines=paper --camera-format=kalibr", r"--camera-format"),
     # issue 12: --detector / --family (study, dataset)
-    (f"{S} --detector=aruco", r"--detector.*invalid choice.*opencv"),
+    (f"{S} --detector=aruco", r"--detector.*aruco.*built-in detectors: opencv"),
     (f"{S} --family=nan", r"--family/--dictionary.*unknown"),
     (f"{S} --detector=locus --family=apriltag_25h9", r"--family.*locus cannot detect family"),
     (f"{S} --detector=locus --dictionary=7x7_50", r"--dictionary.*locus cannot detect"),
@@ -530,6 +532,7 @@ def test_shipped_settings_are_within_the_limits():
     limits.check_frames("frames", 30, lens.width_px, lens.height_px, "full frames")
 
 
+@pytest.mark.slow  # over a second of CPU: out of `make test-fast`
 @pytest.mark.skipif(gpu_present(), reason="this machine has a GPU: cuda_ad_rgb would run")
 @pytest.mark.parametrize(
     "command", ["detectability --quick", "dataset --quick", "bench render", "bench scale"]

@@ -1,4 +1,4 @@
-"""The committed indoor grid (results/indoor, `make indoor`) is what the README says it is.
+"""The committed indoor grid (results/indoor, `make indoor`) is what docs/datasets.md says it is.
 
 The videos stay out of the repository, so these checks tie the committed files to each other:
 the score ran on the dataset the manifest describes (the default grid's indoor samples, every

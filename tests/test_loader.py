@@ -278,6 +278,7 @@ def test_a_sample_refuses_in_one_line_naming_the_file(copy, how, name) -> None:
     assert "\n" not in message and f"{LONG}/{name}" in message, message
 
 
+@pytest.mark.slow  # over a second of CPU: out of `make test-fast`
 def test_imports_no_mitsuba_or_drjit(fake) -> None:
     """Opening, verifying and reading a dataset loads neither (a fresh interpreter)."""
     code = (

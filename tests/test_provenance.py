@@ -99,7 +99,7 @@ def test_score_records_every_sample_file(rendered_pair, tmp_path) -> None:
 def test_bench_pipeline_manifest(variant, tmp_path) -> None:
     from bench.benchmarks.pipeline import bench_pipeline
 
-    bench_pipeline([PRESETS["paper"]], frames=2, min_seconds=0.0, variant=variant, out=tmp_path)
+    bench_pipeline([PRESETS["paper"]], frames=2, rounds=3, variant=variant, out=tmp_path)
     manifest = check_manifest(tmp_path, "bench-pipeline")
     assert set(manifest["outputs"]) == {"bench.json"}
     assert manifest["config"]["pipelines"] == [PRESETS["paper"].to_json()]

@@ -139,3 +139,36 @@ def test_a_large_marker_refines_from_corners_pixels_off():
     assert np.linalg.norm(corners - truth, axis=1).max() < 0.1
     _, failure = refine_corners_by_edges(image, start, CAMERA, MODULES, offset, max_shift_px=2.5)
     assert failure == "moved too far" and failure in FAILURES
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("kind", sorted(BEFORE_CURVE) + sorted(AFTER_CURVE))
+def test_auto_measures_the_curve_on_large_markers(albedos, kind):
+    """transfer="auto" (the default) reads the curve off the marker's border: exactly the
+    "srgb" result on blur before the curve, and within "linear"'s bounds on blur after it (on
+    "blur" and "jpeg" it is the "linear" result; on "sharpen" the border says sRGB)."""
+    before = kind in BEFORE_CURVE
+    photo, light = (BEFORE_CURVE if before else AFTER_CURVE)[kind]
+    auto = _score(albedos["large"], photo, light, "auto")
+    assert auto["failures"] == []
+    if before:
+        srgb = _score(albedos["large"], photo, light, "srgb")
+        np.testing.assert_array_equal(auto["errors"], srgb["errors"])
+        return
+    assert auto["errors"].mean() < 0.25, auto["errors"].mean()
+    assert auto["errors"].max() < 0.5, auto["errors"].max()
+    assert abs(auto["outward"]) < 0.25, auto["outward"]
+    if kind != "sharpen":
+        linear = _score(albedos["large"], photo, light, "linear")
+        np.testing.assert_array_equal(auto["errors"], linear["errors"])
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("kind", sorted(BEFORE_CURVE))
+def test_auto_raises_no_false_flag_on_small_markers(albedos, kind):
+    """Modules too small to measure the border: sRGB, and no "curve sensitive" on clean steps."""
+    photo, light = BEFORE_CURVE[kind]
+    auto = _score(albedos["small"], photo, light, "auto")
+    srgb = _score(albedos["small"], photo, light, "srgb")
+    assert auto["failures"] == []
+    np.testing.assert_array_equal(auto["errors"], srgb["errors"])

@@ -65,6 +65,7 @@ def test_exact_corners_score_perfectly_and_without_timing_as_accuracy_only(
     assert manifest["config"]["results"]["timed"] is False
 
 
+@pytest.mark.slow  # over a second of CPU: out of `make test-fast`
 def test_speed_from_the_files_times_or_fps(fake, truth, tmp_path) -> None:
     path = tmp_path / "timed.csv"
     truth.assign(frame_time_s=0.02).to_csv(path, index=False)
@@ -74,6 +75,7 @@ def test_speed_from_the_files_times_or_fps(fake, truth, tmp_path) -> None:
     assert np.allclose(_samples(tmp_path / "b")["frames_per_s"], 31.5)
 
 
+@pytest.mark.slow  # over a second of CPU: out of `make test-fast`
 def test_a_folder_of_parquet_files_with_poses_and_the_dataset_hash(
     fake, truth, tmp_path, capsys
 ) -> None:

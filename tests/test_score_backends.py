@@ -55,6 +55,7 @@ def _fake_dataset(folder, dictionary: str):
     return folder
 
 
+@pytest.mark.slow  # over a second of CPU: out of `make test-fast`
 @pytest.mark.skipif(not available("locus"), reason="locus-tag not installed (the peers extra)")
 def test_score_refuses_a_family_the_backend_cannot_detect_before_any_work(tmp_path) -> None:
     data = _fake_dataset(tmp_path / "data", "DICT_5X5_100")

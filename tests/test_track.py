@@ -146,6 +146,7 @@ def crashing(monkeypatch):
     stop_workers()
 
 
+@pytest.mark.slow  # over a second of CPU: out of `make test-fast`
 def test_a_backend_crash_costs_its_frame_and_the_run_goes_on(crashing) -> None:
     marked = frame_with_marker(SPEC.marker_ids[5])
     black = np.zeros_like(marked)

@@ -46,7 +46,7 @@ def _detections(image: np.ndarray, detector: DetectorConfig) -> dict[int, np.nda
 
 
 def write_still(path: Path, image: np.ndarray, labels, frame: int, zone) -> None:
-    """The zone of one frame with its ground truth drawn, as a PNG (the README's still)."""
+    """The zone of one frame with its ground truth drawn, as a PNG (docs/datasets.md's still)."""
     from bench.common.video import draw_preview
     from bench.dataset.labels import corners_of_frame
 

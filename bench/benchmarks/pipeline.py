@@ -3,9 +3,10 @@
 The frames are rendered whole (``full_frame``: vegetation in every pixel, not the dataset's black
 outside the band), in time order around the largest deflection of a busy sample (foliage and a
 branch), so ROI tracking sees real motion. OpenCV runs on one thread. Each pipeline's tracking
-(detection and pose of every frame; the branch stages after it are a few ms per sample) is
-repeated until it has run for ``min_seconds`` and the fastest repeat counts: these machines are
-shared, and a slower repeat is another process's noise, not the pipeline's. Recall and corner
+(detection and pose of every frame; the branch stages after it are a few ms per sample) is timed
+as ``compare`` times a dataset's frames (:mod:`bench.evaluate.timing`, ``docs/speed.md``): the
+first frame is the untimed lead-in, the pipelines alternate, ``rounds`` times, and frames/s is
+the median over rounds with the slowest and fastest round beside it. Recall and corner
 error on the same frames are printed beside each speed, so a fast pipeline that misses markers
 or places corners badly shows it, and then who leads on each measure, the best peer detector
 beside the best project pipeline (:mod:`bench.evaluate.leaders`, the wording of ``compare``'s
@@ -32,14 +33,16 @@ from bench.dataset.config import DatasetConfig
 from bench.evaluate.band import rows_band_values
 from bench.evaluate.leaders import leader_lines, leaders
 from bench.evaluate.score import score_markers
-from bench.evaluate.speed import (
-    SPEED_SAMPLE,
-    full_frames,
+from bench.evaluate.speed import SPEED_SAMPLE, full_frames, full_run
+from bench.evaluate.timing import (
+    SPEED_ROUNDS,
     one_opencv_thread,
-    time_pipeline,
-    track_frames,
+    speed_figures,
+    speed_of,
+    time_pipelines,
+    track_run,
 )
-from pipeline.backends import require
+from pipeline.backends import BackendError, require
 from pipeline.presets import PipelineConfig
 from renderers.variant import init_worker
 
@@ -56,11 +59,12 @@ def bench_pipeline(
     pipelines: list[PipelineConfig],
     config: DatasetConfig = SPEED_SAMPLE,
     frames: int = 30,
-    min_seconds: float = 2.0,
+    rounds: int = SPEED_ROUNDS,
     variant: str | None = None,
     out: Path | None = None,
 ) -> dict:
-    """Print and return frames/s, ratio to the first pipeline, recall and the errors
+    """Print and return frames/s (median over ``rounds``, slowest and fastest round), ratio
+    to the first pipeline, recall and the errors
     (:data:`MEASURES`) per pipeline, the same errors at the camera band's ends
     (:func:`band_scales`), and who leads.
 
@@ -83,17 +87,31 @@ def bench_pipeline(
         scores = score_markers(detections, labels)
         return {k: float(scores[k]) for k in MEASURES if k in scores}
 
+    run = full_run(config, images)
+    timing = time_pipelines([run], {p.name: p for p in pipelines}, rounds)
+    if timing.failed:  # a ratio needs every pipeline's speed: the failure stops the benchmark
+        raise BackendError("; ".join(timing.failed.values()))
+    speed = speed_figures(timing.rounds)
+    rows, at_ends = [], {end: [] for end in ends}
     with one_opencv_thread():
-        rows, at_ends = [], {end: [] for end in ends}
         for pipeline in pipelines:
-            fps, detections = time_pipeline(images, config, pipeline, min_seconds)
-            rows.append({"pipeline": pipeline.name, "fps": fps, **measured(detections)})
+            detections = timing.detections[pipeline.name][0]
+            rows.append(
+                {
+                    "pipeline": pipeline.name,
+                    **speed_of(speed, pipeline.name),
+                    **measured(detections),
+                }
+            )
             for end in ends:
-                result = track_frames(by_scale[end], config, pipeline)
+                result = track_run(full_run(config, by_scale[end]), pipeline)
                 at_ends[end].append({"pipeline": pipeline.name, **measured(result.detections)})
     base = rows[0]
     h, w = images[0].shape
-    print(f"{len(images)} frames of {w}x{h} px, one core; ratio against {base['pipeline']}")
+    print(
+        f"{run.timed_frames} frames of {w}x{h} px timed (after a lead-in frame), one core, "
+        f"{rounds} rounds alternating; ratio against {base['pipeline']}"
+    )
     for row in rows:
         row["ratio"] = row["fps"] / base["fps"]
         row["recall_pp_vs_base"] = 100 * (row["recall"] - base["recall"])
@@ -105,7 +123,8 @@ def bench_pipeline(
             else (f"  target {target:g}: {'met' if row['fps'] >= target else 'MISSED'}")
         )
         print(
-            f"{row['pipeline']:>12}: {row['fps']:7.1f} frames/s  {row['ratio']:5.2f}x  "
+            f"{row['pipeline']:>12}: {row['fps']:7.1f} frames/s "
+            f"({row['fps_min']:.1f}-{row['fps_max']:.1f})  {row['ratio']:5.2f}x  "
             f"recall {row['recall']:.3f} ({row['recall_pp_vs_base']:+.1f} pp)  "
             f"corner error {row['corner_err_px']:.3f} px{verdict}"
         )
@@ -129,6 +148,8 @@ def bench_pipeline(
         print(f"  {line}")
     figures = {
         "frames": len(images),
+        "timed_frames": run.timed_frames,
+        "rounds": rounds,
         "frame_px": [w, h],
         "cpu_count": os.cpu_count(),
         "opencv": cv2.__version__,
@@ -142,7 +163,7 @@ def bench_pipeline(
         config_record = {
             "pipelines": [p.to_json() for p in pipelines],
             "frames": frames,
-            "min_seconds": min_seconds,
+            "rounds": rounds,
             "sample": config.to_json(),
         }
         record = build_manifest(

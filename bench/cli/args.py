@@ -8,8 +8,10 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import re
 import socket
+import sys
 import time
 from collections.abc import Iterable
 from pathlib import Path
@@ -89,6 +91,63 @@ def seed(text: str) -> int:
     return value
 
 
+#: The Linux ioctl reading a file's attribute flags, and its immutable and append-only flags.
+_FS_IOC_GETFLAGS, _FS_IMMUTABLE_FL, _FS_APPEND_FL = 0x80086601, 0x10, 0x20
+
+
+def check_path_name(path: Path, field: str = "out") -> None:
+    """A path the file system can hold and reach: every name within the file system's limit
+    (255 bytes on most), no dangling symbolic link or link loop on the way; FieldError naming
+    ``field`` otherwise (the system would refuse it only when the work is done)."""
+    parent = next((p for p in path.absolute().parents if os.path.isdir(p)), Path("/"))
+    try:
+        name_max = os.pathconf(parent, "PC_NAME_MAX")
+    except (OSError, ValueError):
+        name_max = 255
+    for part in path.parts:
+        if len(os.fsencode(part)) > name_max:
+            raise FieldError(
+                field, f"{part[:16]}...: a name of {len(os.fsencode(part))} bytes; the file "
+                f"system allows {name_max}",
+            )  # fmt: skip
+    for at in (path, *path.parents):  # the deepest part that exists says whether it resolves
+        try:
+            os.stat(at)  # follows links: a loop, a file on the way, a long path show here
+            return
+        except (FileNotFoundError, NotADirectoryError):  # the folder check says more
+            if os.path.islink(at):
+                raise FieldError(
+                    field, f"{at}: a symbolic link to {os.readlink(at)}, which does not exist; "
+                    "remove it or name another path",
+                ) from None  # fmt: skip
+        except OSError as exc:  # ELOOP, ENOTDIR, EACCES, ENAMETOOLONG
+            raise FieldError(field, f"{at}: {exc.strerror}") from None
+
+
+def _check_replaceable(path: Path, field: str) -> None:
+    """An existing output file flagged immutable or append-only (``chattr +i``) cannot be
+    replaced, even by root: refused now rather than after the work."""
+    import fcntl
+
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)
+    except OSError:
+        return  # absent, or unreadable: the folder's check or the write says more
+    try:
+        flags = fcntl.ioctl(fd, _FS_IOC_GETFLAGS, b"\0" * 8)
+        value = int.from_bytes(flags[:4], sys.byteorder)
+    except OSError:  # a file system without attribute flags
+        return
+    finally:
+        os.close(fd)
+    if value & (_FS_IMMUTABLE_FL | _FS_APPEND_FL):
+        kind = "immutable" if value & _FS_IMMUTABLE_FL else "append-only"
+        raise FieldError(
+            field, f"{path}: the file is {kind} (chattr); it cannot be replaced: "
+            "clear the flag or name another file",
+        )  # fmt: skip
+
+
 def check_out_folder(path: Path | str, field: str = "out", inputs: Iterable[Path] = ()) -> Path:
     """An output folder that is the command's own to write (made later, not now): not an
     existing file or special file, not a dangling symbolic link, writable, not inside another
@@ -112,6 +171,8 @@ def check_out_file(path: Path | str, field: str = "out", inputs: Iterable[Path] 
 
 
 def _checked(path: Path, field: str, inputs: Iterable[Path], folder: bool) -> Path:
+    """The checks an output folder and an output file share."""
+    check_path_name(path, field)
     try:
         check_out_path(path, folder)
         check_writable(path if folder else path.parent)
@@ -119,6 +180,8 @@ def _checked(path: Path, field: str, inputs: Iterable[Path], folder: bool) -> Pa
         check_not_input(path, inputs, "--" + field.removeprefix("--"))
     except ValueError as exc:
         raise FieldError(field, str(exc)) from None
+    if not folder:
+        _check_replaceable(path, field)
     return path
 
 
@@ -134,7 +197,7 @@ def add_executor_options(p: argparse.ArgumentParser) -> None:
         "--scheduler",
         metavar="tcp://HOST:PORT",
         help="a running Dask scheduler (dask scheduler) whose workers run the tasks; implies "
-        "--executor dask (README: Running on more machines)",
+        "--executor dask (docs/dask.md)",
     )
 
 
@@ -188,3 +251,20 @@ def check_executor(executor: str | None, scheduler: str | None) -> str:
             f"start at least one with `dask worker {scheduler}`",
         )
     return "dask"
+
+
+def check_variant(requested: str | None) -> None:
+    """A ``--variant`` this machine cannot run (cuda_ad_rgb without a GPU, llvm_ad_rgb without
+    libLLVM) is refused before any command claims a folder; setting it here is what the command
+    would do first anyway (idempotent)."""
+    if requested is None:
+        return
+    from renderers.variant import gpu_present, select_variant
+
+    if requested.startswith("cuda") and not gpu_present():
+        raise FieldError("variant", f"{requested} needs an NVIDIA GPU; this machine has none")
+    try:
+        select_variant(requested)
+    except (ValueError, RuntimeError) as exc:
+        reason = str(exc).removeprefix("no Mitsuba variant could be set: ")
+        raise FieldError("variant", f"cannot be used on this machine: {reason}") from None

@@ -15,6 +15,7 @@ from bench.dataset.config import (
     DEFAULT_PROFILE,
     DEFAULT_PROTOCOLS,
     DatasetConfig,
+    DatasetConfigError,
     array_of_family,
     branches_name,
 )
@@ -49,6 +50,7 @@ OPTION_OF_FIELD = {
     "subframes": "--subframes",
     "integrator": "--integrator",
     "path_depth": "--path-depth",
+    "adaptive": "--adaptive",
     "workers": "--workers",
     "executor": "--executor",
     "scheduler": "--scheduler",
@@ -120,7 +122,9 @@ def add_dataset_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--passes", type=int, help="translations (default: the protocol's)")
     p.add_argument("--fps", type=float, help="frame rate (default 15)")
     p.add_argument(
-        "--exposure-ms", type=float, default=8.0, help="exposure time: motion blur (default 8)"
+        "--exposure-ms",
+        type=float,
+        help=f"exposure time: motion blur (default {DatasetConfig.exposure_ms:g})",
     )
     p.add_argument(
         "--camera",
@@ -159,6 +163,12 @@ def add_dataset_options(p: argparse.ArgumentParser) -> None:
         "--path-depth", type=int, default=3, help="bounces of --integrator path, 1..8 (default 3)"
     )
     p.add_argument(
+        "--adaptive",
+        action="store_true",
+        help="each pixel's first sample, its others only near an edge (about 11%% less render "
+        "time; within the reference's seed spread: docs/video_speed.md)",
+    )
+    p.add_argument(
         "--family",
         help="marker family of the array, one a detector decodes: 4x4_50, apriltag_36h11, "
         "apriltag_16h5, ... (OpenCV's dictionary names; default 4x4_50)",
@@ -183,7 +193,23 @@ def add_dataset_options(p: argparse.ArgumentParser) -> None:
 
 
 def dataset_config(args: argparse.Namespace) -> DatasetConfig:
-    """The DatasetConfig the options describe (--quick fills what was not given)."""
+    """The DatasetConfig the options describe (--quick fills what was not given); an exposure
+    longer than a frame blames --fps when --exposure-ms was left at its default."""
+    try:
+        return _dataset_config(args)
+    except DatasetConfigError as exc:
+        if exc.field != "exposure_ms" or args.exposure_ms is not None or args.fps is None:
+            raise
+        default_ms = DatasetConfig.exposure_ms
+        raise DatasetConfigError(
+            "fps",
+            f"{args.fps:g}: one frame lasts {1000.0 / args.fps:g} ms, shorter than the default "
+            f"exposure of {default_ms:g} ms; allowed up to {1000.0 / default_ms:g} fps with it, "
+            "or give a shorter --exposure-ms as well",
+        ) from None
+
+
+def _dataset_config(args: argparse.Namespace) -> DatasetConfig:
     quick = QUICK if args.quick else {}
     camera = {} if args.camera is None else {"camera": profile_from_option(args.camera)}
     array = {} if args.family is None else {"array": array_of_family(args.family)}
@@ -193,6 +219,7 @@ def dataset_config(args: argparse.Namespace) -> DatasetConfig:
         full_frame=args.full_frame,
         integrator=args.integrator,
         path_depth=args.path_depth,
+        adaptive=args.adaptive,
     )
     return DatasetConfig(
         foliage=args.foliage or quick.get("foliage", DEFAULT_FOLIAGE),
@@ -208,7 +235,7 @@ def dataset_config(args: argparse.Namespace) -> DatasetConfig:
         amplitude_mm=args.amplitude,
         passes=args.passes if args.passes is not None else quick.get("passes"),
         fps=args.fps,
-        exposure_ms=args.exposure_ms,
+        **({} if args.exposure_ms is None else {"exposure_ms": args.exposure_ms}),
         exposure=args.exposure,
         psf_scale=args.psf_scale,
         sampling=sampling,
@@ -266,7 +293,6 @@ def cmd_dataset(args: argparse.Namespace) -> int:
 
 def cmd_bench_dataset(args: argparse.Namespace) -> int:
     from bench.benchmarks.dataset import bench_dataset
-    from bench.dataset.config import DatasetConfigError
 
     config = dataset_config(args)
     if args.out is not None:

@@ -1,10 +1,9 @@
-"""``whiskerbench detect``, ``score``, ``compare`` and ``bench pipeline``: options and commands
-(bad input: one line, exit code 2)."""
+"""``whiskerbench detect`` and ``score``: options and commands, and the option types and
+helpers ``compare`` shares (:mod:`bench.cli.compare`; bad input: one line, exit code 2)."""
 
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import math
 import sys
@@ -12,15 +11,24 @@ from pathlib import Path
 
 from bench.cli import limits
 from bench.cli.args import add_executor_options, check_executor, check_out_folder, name_list
-from bench.cli.results import add_results_options, cmd_score_results, wants_results
-from pipeline.backends import PEERS_INSTALL
+from bench.cli.hints import CSV, summary_hints
+from bench.cli.results import (
+    add_results_options,
+    cmd_score_branch_plugin,
+    cmd_score_results,
+    wants_results,
+)
 from pipeline.presets import CHOICES, PRESETS, PipelineConfig, get_pipeline
-from renderers.variant import VARIANTS
 from scenes.validation import FieldError
 
 VARIANT_HELP = (
-    f"a preset ({', '.join(PRESETS)}), optionally changed by /CHOICE=VALUE parts, e.g. "
+    f"a preset ({', '.join(PRESETS)}) or a detector plugin plugin:SPEC (docs/plugins.md), "
+    "optionally changed by /CHOICE=VALUE parts, e.g. "
     f"paper/refine=contour/aruco3=on; choices: {', '.join(CHOICES)}"
+)
+OUTSIDE_HELP = (
+    "; or results:FILE_OR_DIR (another tool's detections, docs/results_format.md) or "
+    "branch-plugin:SPEC (a branch finder, docs/plugins.md), scored on the dataset only"
 )
 
 
@@ -34,6 +42,30 @@ def _pipeline(text: str) -> PipelineConfig:
 def pipelines(text: str) -> list[PipelineConfig]:
     names = name_list("--pipelines")(text)
     return [_pipeline(n) for n in names]
+
+
+def _method(text: str):
+    """A pipeline, ``results:PATH`` or ``branch-plugin:SPEC`` (:mod:`bench.evaluate.outside`)."""
+    from bench.evaluate.outside import parse_method
+
+    try:
+        return parse_method(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def methods(text: str) -> list:
+    """compare's ``--pipelines``: pipelines and outside methods."""
+    return [_method(n) for n in name_list("--pipelines")(text)]
+
+
+def _score_pipeline(text: str):
+    """score's ``--pipeline``: a pipeline, or a branch finder ``branch-plugin:SPEC``."""
+    from bench.evaluate.outside import RESULTS
+
+    if text.startswith(RESULTS):
+        raise argparse.ArgumentTypeError(f"{text!r}: give a results file as --detections")
+    return _method(text)
 
 
 def add_detect_options(p: argparse.ArgumentParser) -> None:
@@ -60,6 +92,7 @@ def add_detect_options(p: argparse.ArgumentParser) -> None:
 
 
 def cmd_detect(args: argparse.Namespace) -> int:
+    from bench.common.video import check_video
     from bench.evaluate.detect import run_detect
     from scenes.profile import ProfileError, load_profile
 
@@ -81,6 +114,10 @@ def cmd_detect(args: argparse.Namespace) -> int:
         return fail(f"{args.video}: is a folder, not a video file")
     if not args.video.is_file():
         return fail(f"{args.video}: no such file")
+    try:
+        check_video(args.video)  # bounded before the output is claimed or a frame decoded
+    except ValueError as exc:
+        return fail(f"{args.video}: {exc}")
     out = args.out or args.video.with_name(f"{args.video.stem}.{args.pipeline.folder_name}")
     try:
         check_out_folder(out)
@@ -141,20 +178,20 @@ def add_score_options(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--pipeline",
         default=PRESETS["paper"],
-        type=_pipeline,
-        help=VARIANT_HELP + " (default paper)",
+        type=_score_pipeline,
+        help=VARIANT_HELP + "; or a branch finder branch-plugin:SPEC (default paper)",
     )
     p.add_argument("--out", type=Path, help="output folder (default <dataset>/scores/<pipeline>)")
     add_results_options(p)
-    _add_workers_options(p, "one sample each")
+    add_workers_options(p, "one sample each")
 
 
-def _add_workers_options(p: argparse.ArgumentParser, task: str) -> None:
+def add_workers_options(p: argparse.ArgumentParser, task: str) -> None:
     p.add_argument("--workers", type=int, default=1, help=f"worker processes, {task} (default 1)")
     add_executor_options(p)
 
 
-def _check_workers(args: argparse.Namespace) -> str:
+def check_workers_option(args: argparse.Namespace) -> str:
     """The executor; FieldError on --workers, --executor or --scheduler."""
     limits.check_workers("workers", args.workers)
     return check_executor(args.executor, args.scheduler)
@@ -169,19 +206,21 @@ def cmd_score(args: argparse.Namespace) -> int:
 
     if wants_results(args):  # another tool's detections: no detector runs
         try:
-            executor = _check_workers(args)
+            executor = check_workers_option(args)
         except FieldError as exc:
             return fail(f"--{exc.field}: {exc.detail}")
         return cmd_score_results(args, fail, executor)
     if not args.dataset.is_dir():
         return fail(f"{args.dataset}: not a dataset folder")
+    if not isinstance(args.pipeline, PipelineConfig):  # a branch finder
+        return cmd_score_branch_plugin(args, fail)
     missing = _missing_detector(args.pipeline)
     if missing:
         return fail(missing)
     out = args.out or args.dataset / "scores" / args.pipeline.folder_name
     try:
         check_out_folder(out)
-        executor = _check_workers(args)
+        executor = check_workers_option(args)
     except FieldError as exc:
         return fail(f"--{exc.field}: {exc.detail}")
     args.kept = (
@@ -205,6 +244,9 @@ def cmd_score(args: argparse.Namespace) -> int:
         f"{len(table)} samples, {len(refused)} refused: {accuracy}; wrote {out}/samples.csv "
         "and grid-*.png"
     )
+    name = args.pipeline.name
+    for line in summary_hints(name, table["recall"].mean(), len(refused), len(table), out / CSV):
+        print(line)
     for row in refused.itertuples():
         print(f"warning: {row.sample_id} refused: {row.refused_reason}", file=sys.stderr)
     for row in table.itertuples():
@@ -214,169 +256,4 @@ def cmd_score(args: argparse.Namespace) -> int:
                 crash_warning(row.sample_id, args.pipeline.detector.backend, frames),
                 file=sys.stderr,
             )
-    return 0
-
-
-#: What --pipelines of compare and bench pipeline default to.
-DEFAULT_PIPELINES_HELP = (
-    f"every preset whose detector is installed ({','.join(PRESETS)}; the peers need "
-    f"{PEERS_INSTALL})"
-)
-
-
-def _installed_presets() -> list[PipelineConfig]:
-    """Every preset whose detector can run here: a peer asked for by name and missing is
-    refused, but a default without the optional peers still runs."""
-    from pipeline.backends import available
-
-    return [p for p in PRESETS.values() if all(map(available, p.backends))]
-
-
-def add_compare_options(p: argparse.ArgumentParser) -> None:
-    p.add_argument("dataset", type=Path, help="dataset folder (made by whiskerbench dataset)")
-    p.add_argument(
-        "--pipelines",
-        type=pipelines,
-        metavar="NAME,...",
-        help="variants to compare, comma-separated; each "
-        + VARIANT_HELP
-        + f" (default {DEFAULT_PIPELINES_HELP})",
-    )
-    p.add_argument("--out", type=Path, help="report folder (default <dataset>/compare)")
-    p.add_argument(
-        "--seeds", type=int, default=5, help="seeds per sweep level (default 5, at least 5)"
-    )
-    p.add_argument("--quick", action="store_true", help="a small sweep (2 seeds, few levels)")
-    p.add_argument(
-        "--camera",
-        metavar="PROFILE",
-        help="camera profile of the failure-boundary sweeps: a shipped name or a JSON file "
-        "(default: the dataset's own, from its samples' camera.json)",
-    )
-    p.add_argument(
-        "--variant", choices=VARIANTS, help="Mitsuba variant (default: the fastest available)"
-    )
-    _add_workers_options(p, "one sample or sweep render each")
-
-
-def _sweep_camera(option: str | None, dataset: Path):
-    """The sweeps' camera profile: the option's, else the one the dataset was rendered with."""
-    from bench.study.config import StudyConfigError, profile_from_option
-
-    if option is None:
-        cameras = sorted(dataset.glob("*/camera.json"))[:1]
-        if not cameras:
-            return None  # run_compare refuses a folder without samples in its own words
-        option = str(cameras[0])
-    try:
-        return profile_from_option(option)
-    except StudyConfigError as exc:
-        raise ValueError(f"--camera: {exc.detail}") from None
-
-
-def cmd_compare(args: argparse.Namespace) -> int:
-    import pandas as pd
-
-    from bench.evaluate.compare import run_compare
-    from bench.evaluate.leaders import band_lines
-    from bench.evaluate.score import dataset_family
-    from bench.evaluate.sweep_config import QUICK_SWEEP, SweepConfig
-    from bench.study.config import alphas_within
-    from pipeline.backends import BackendUnavailableError
-
-    def fail(message: str) -> int:
-        print(f"whiskerbench compare: error: {' '.join(message.split())}", file=sys.stderr)
-        return 2
-
-    args.pipelines = args.pipelines or _installed_presets()
-    if args.quick:
-        sweep = QUICK_SWEEP
-    elif args.seeds < 5:
-        return fail(f"--seeds: {args.seeds}: must be >= 5 (use --quick for a smoke run)")
-    else:
-        sweep = SweepConfig(seeds=args.seeds)
-    if not args.dataset.is_dir():
-        return fail(f"{args.dataset}: not a dataset folder")
-    out = args.out or args.dataset / "compare"
-    try:
-        check_out_folder(args.dataset / "scores", "dataset")  # each variant's scores go there
-        check_out_folder(out)
-        limits.check_sweep(sweep, len(args.pipelines))
-        executor = _check_workers(args)
-    except FieldError as exc:
-        return fail(f"{'DATASET' if exc.field == 'dataset' else '--' + exc.field}: {exc.detail}")
-    args.kept = (
-        f"scores of the variants finished so far are kept in {args.dataset / 'scores'}; the "
-        f"report in {out} is written at the end: rerun the same command"
-    )
-    try:
-        camera = _sweep_camera(args.camera, args.dataset)
-        if camera is not None:  # the sweep's built-in alphas end at this camera's edge
-            alphas = alphas_within(sweep.alphas_deg, camera)
-            sweep = dataclasses.replace(sweep, camera=camera, alphas_deg=alphas)
-        family = dataset_family(args.dataset)
-        if family is not None:  # the sweeps render the dataset's marker family
-            sweep = dataclasses.replace(sweep, dictionary=family)
-        summary = run_compare(
-            args.dataset,
-            args.pipelines,
-            out,
-            sweep,
-            variant=args.variant,
-            workers=args.workers,
-            executor=executor,
-            scheduler=args.scheduler,
-        )
-    except (ValueError, FileNotFoundError, BackendUnavailableError) as exc:
-        return fail(str(exc))
-    for row in summary.itertuples():
-        if row.refused_samples == row.samples:  # no answer to rate: the counts say why
-            accuracy = f"refused all {row.samples} samples, no rates"
-        else:
-            accuracy = (
-                f"correct {row.correct_rate:.0%}, recall {row.recall:.3f}, deflection error "
-                f"{row.deflection_err_mm:.2f} mm"
-            )
-        print(f"{row.pipeline:>24}: {row.fps:7.1f} frames/s, {accuracy}")
-    for line in band_lines(pd.read_csv(out / "leaders.csv")):
-        print(line)
-    print(f"wrote {out}/report.md")
-    return 0
-
-
-def add_bench_pipeline_options(p: argparse.ArgumentParser) -> None:
-    p.add_argument(
-        "--pipelines",
-        type=pipelines,
-        metavar="NAME,...",
-        help=f"variants to time; ratios are against the first (default {DEFAULT_PIPELINES_HELP})",
-    )
-    p.add_argument("--frames", type=int, default=30, help="full frames to time (default 30)")
-    p.add_argument("--out", type=Path, help="also write bench.json into this folder")
-    p.add_argument(
-        "--variant", choices=VARIANTS, help="Mitsuba variant (default: the fastest available)"
-    )
-
-
-def cmd_bench_pipeline(args: argparse.Namespace) -> int:
-    from bench.benchmarks.pipeline import band_scales, bench_pipeline
-    from bench.dataset.config import DatasetConfigError
-    from bench.evaluate.speed import SPEED_SAMPLE
-    from pipeline.backends import BackendUnavailableError
-
-    if args.frames < 2:
-        raise DatasetConfigError("frames", f"{args.frames}: must be >= 2")
-    lens = SPEED_SAMPLE.camera.lens
-    scales = 1 + len(band_scales(SPEED_SAMPLE))  # the frames at 1 and at the band's ends
-    size = f"{lens.width_px}x{lens.height_px}"
-    what = f"{args.frames} full frames of {size} at {scales} PSF scales"
-    limits.check_memory("frames", args.frames, scales * lens.width_px * lens.height_px, what)
-    if args.out is not None:
-        check_out_folder(args.out)
-    pipelines = args.pipelines or _installed_presets()
-    try:
-        bench_pipeline(pipelines, frames=args.frames, variant=args.variant, out=args.out)
-    except BackendUnavailableError as exc:  # refused before any work
-        print(f"whiskerbench bench pipeline: error: --pipelines: {exc}", file=sys.stderr)
-        return 2
     return 0

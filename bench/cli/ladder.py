@@ -7,22 +7,10 @@ from pathlib import Path
 
 from bench.cli import limits
 from bench.cli.args import check_out_folder, name_list, seed
-from bench.ladder.config import LadderConfig, LadderConfigError
+from bench.ladder.config import OPTION_OF_FIELD, LadderConfig, LadderConfigError
+
 
 #: LadderConfig field -> the option that sets it (for one-line errors).
-OPTION_OF_FIELD = {
-    "parts": "--parts",
-    "images": "--images",
-    "frames_step": "--frames-step",
-    "profile": "--profile",
-    "video_axes": "--video-axes",
-    "seed": "--seed",
-    "reference_spp": "--reference-spp",
-    "path_depth": "--path-depth",
-    "spps": "--spp",
-}
-
-
 def _spps(text: str) -> tuple[int, ...]:
     try:
         return tuple(int(v) for v in name_list("--spp")(text))

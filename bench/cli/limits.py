@@ -1,10 +1,13 @@
 """Upper limits of the options that size work or memory, estimated before anything is allocated.
 
 Each command's work is estimated from its options with costs measured on this project's 2-core
-machine (README "Performance"; the figures are lower bounds: the fastest rates seen). A run is
+machine (docs/performance.md; the figures are lower bounds: the fastest rates seen). A run is
 refused, naming the option that grows it most, when it would need more memory than half of this
 machine's physical memory or run longer than :data:`TIME_BUDGET_S` on all of its cores. The
 message says the estimate, the limit on that option and how it was derived.
+
+The files a user hands over are bounded by :mod:`scenes.input_limits` (a lower layer, so that
+every reader can import them); docs/limits.md lists both kinds.
 """
 
 from __future__ import annotations
@@ -22,15 +25,17 @@ TIME_BUDGET_S = 7 * 24 * 3600.0
 TIME_BUDGET_TEXT = "7 days"
 
 # --- measured costs (seconds, bytes), lower bounds
-#: Clean render of one study cell at 16 spp (README: about 83 ms per cell, llvm_ad_rgb).
+#: Clean render of one study cell at 16 spp (docs/performance.md: about 83 ms per cell,
+#: llvm_ad_rgb).
 STUDY_RENDER_S_AT_16_SPP = 0.083
-#: One study image through the twin and the detector, render excluded (README: 0.17 + 0.78 +
-#: 1.72 ms CPU per image).
+#: One study image through the twin and the detector, render excluded (docs/performance.md:
+#: 0.17 + 0.78 + 1.72 ms CPU per image).
 STUDY_IMAGE_S = 0.0027
-#: One band frame of a dataset at 4 spp and 4 subframes, render only (README: 17.7 frames/s,
-#: `bench dataset`, llvm_ad_rgb).
+#: One band frame of a dataset at 4 spp and 4 subframes, render only (docs/datasets.md:
+#: 17.7 frames/s, `bench dataset`, llvm_ad_rgb).
 DATASET_FRAME_S_AT_16_RAYS = 1 / 17.7
-#: Full frames render this many times slower than the band (README: 17.7 against 6.4 frames/s).
+#: Full frames render this many times slower than the band (docs/datasets.md: 17.7 against
+#: 6.4 frames/s).
 FULL_FRAME_FACTOR = 17.7 / 6.4
 #: Memory of a simulated sample per time sample (frames x (subframes + 1)): 6.3 kB measured
 #: with tracemalloc over simulate_sample (peak 31.5 kB per frame at 4 subframes).
@@ -94,7 +99,7 @@ def check_time(field: str, seconds: float, what: str, value: float, per_unit_s: 
             field,
             f"{_num(value)}: {what} would take at least {_duration(seconds / cores())} on "
             f"{cores()} cores; limit {limit} ({TIME_BUDGET_TEXT} at the fastest measured rates, "
-            "README Performance)",
+            "docs/performance.md)",
         )
 
 
@@ -171,24 +176,30 @@ def dataset_frames(config, protocol: str) -> float:
     return full if math.isinf(full) else float(-(-full // config.frames_step))
 
 
-def _check_sample_memory(config, protocol: str, frames: float, workers: int) -> None:
-    """Refuse a sample whose simulation would not fit, naming the option that lengthened it."""
+def _motion_growth(config, protocol: str) -> dict[str, float]:
+    """How many times longer each motion option makes a sample of ``protocol`` than the
+    protocol's own (a slower speed lengthens it)."""
     from scenes.motion import get_protocol
 
+    base, m = get_protocol(protocol), config.motion(protocol)
+    return {
+        "passes": m.passes / base.passes,
+        "amplitude_mm": m.amplitude_mm / base.amplitude_mm,
+        "speed_mm_s": base.speed_mm_s / m.speed_mm_s,
+        "fps": m.fps / base.fps,
+    }
+
+
+def _check_sample_memory(config, protocol: str, frames: float, workers: int) -> None:
+    """Refuse a sample whose simulation would not fit, naming the option that lengthened it."""
     k = config.sampling.subframes
     per_sample = frames * (k + 1) * SAMPLE_BYTES_PER_TIME_SAMPLE
     budget = memory_budget_bytes() / workers
     if per_sample <= budget:
         return
     factor = budget / per_sample  # how much smaller the sample has to be
-    base, m = get_protocol(protocol), config.motion(protocol)
-    growth = {
-        "passes": m.passes / base.passes,
-        "amplitude_mm": m.amplitude_mm / base.amplitude_mm,
-        "speed_mm_s": base.speed_mm_s / m.speed_mm_s,
-        "fps": m.fps / base.fps,
-        "subframes": k / FrameSampling().subframes,
-    }
+    m = config.motion(protocol)
+    growth = {**_motion_growth(config, protocol), "subframes": k / FrameSampling().subframes}
     field = culprit(growth)
     value = {"amplitude_mm": m.amplitude_mm, "speed_mm_s": m.speed_mm_s, "fps": m.fps}.get(
         field, m.passes if field == "passes" else k
@@ -231,12 +242,25 @@ def check_dataset(config, workers: int = 1) -> None:
         _check_sample_memory(config, protocol, frames, workers)
         samples = sum(1 for s in config.samples() if s.protocol == protocol)
         total += samples * frames * frame_s
-    ratios = {"marker_spp": config.sampling.marker_spp / 4, "subframes": k / 4}
-    field = culprit({**ratios, "dataset_grid": 1.0})
-    value = {"marker_spp": config.sampling.marker_spp, "subframes": k}.get(
-        field, len(config.samples())
-    )
+    # the culprit: the grid on a tie, else the option farthest above its default, the
+    # motion options (which lengthen every sample) included
+    growth = {"dataset_grid": 1.0, "marker_spp": config.sampling.marker_spp / 4, "subframes": k / 4}
+    values = {"marker_spp": config.sampling.marker_spp, "subframes": k}
+    for protocol in config.protocols:
+        m = config.motion(protocol)
+        for name, ratio in _motion_growth(config, protocol).items():
+            if ratio > growth.get(name, 0.0):
+                growth[name], values[name] = ratio, getattr(m, name)
+    field = culprit(growth)
+    value = values.get(field, len(config.samples()))
     what = f"{len(config.samples())} samples at {rays} rays per pixel"
+    if field == "speed_mm_s" and total > TIME_BUDGET_S * cores():  # shorter when larger
+        raise FieldError(
+            field,
+            f"{_num(value)}: {what} would take at least {_duration(total / cores())} on "
+            f"{cores()} cores; lowest allowed about {value * total / (TIME_BUDGET_S * cores()):.3g}"
+            f" ({TIME_BUDGET_TEXT} at the fastest measured rates, docs/performance.md)",
+        )
     check_time(field, total, what, value, total / value)
 
 
@@ -264,7 +288,7 @@ def check_sweep(sweep, pipelines: int) -> None:
 
 
 #: A full 2592 x 1944 study frame: about 20 s to render and 0.9 s per image through the twin
-#: (README Performance).
+#: (docs/performance.md).
 FULL_FRAME_RENDER_S = 20.0
 FULL_FRAME_IMAGE_S = 0.9
 
@@ -278,3 +302,29 @@ def check_full_frame_cells(count: int, config) -> None:
     per_cell = FULL_FRAME_RENDER_S + config.images * FULL_FRAME_IMAGE_S
     what = f"{count} full-frame cells x up to {config.images} images"
     check_time("full_frame_cells", count * per_cell, what, count, per_cell)
+
+
+#: ``compare --speed-frames``: timed frames of the dataset, held in memory at once.
+MAX_SPEED_FRAMES = 2000
+#: ``--speed-rounds`` (``bench pipeline --rounds``): a median and a spread need 3 at least.
+SPEED_ROUNDS_RANGE = (3, 100)
+
+
+def check_speed_rounds(field: str, rounds: int) -> None:
+    low, high = SPEED_ROUNDS_RANGE
+    if not low <= rounds <= high:
+        raise FieldError(
+            field, f"{rounds}: allowed range is {low}..{high} (a median and a spread need 3)"
+        )
+
+
+def check_speed_frames(field: str, frames: int, lens=None) -> None:
+    """Timed frames in range and, with the dataset's ``lens``, in memory with each run's
+    lead-in frame (:data:`bench.evaluate.timing.RUN_FRAMES` timed frames a run)."""
+    from bench.evaluate.timing import RUN_FRAMES
+
+    if not 1 <= frames <= MAX_SPEED_FRAMES:
+        raise FieldError(field, f"{frames}: allowed range is 1..{MAX_SPEED_FRAMES}")
+    if lens is not None:
+        held = frames + math.ceil(frames / RUN_FRAMES)
+        check_frames(field, held, lens.width_px, lens.height_px, "frames (lead-ins included)")

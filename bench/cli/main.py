@@ -20,24 +20,28 @@ from bench.cli.args import (
     add_executor_options,
     check_executor,
     check_out_folder,
+    check_variant,
     float_list,
     psf_scales_option,
     seed,
 )
 from bench.cli.camera import add_camera_parser
-from bench.cli.dataset import OPTION_OF_FIELD as DATASET_OPTION_OF_FIELD
-from bench.cli.dataset import add_dataset_options, cmd_bench_dataset, cmd_dataset
-from bench.cli.evaluate import (
+from bench.cli.compare import (
     add_bench_pipeline_options,
     add_compare_options,
-    add_detect_options,
-    add_score_options,
     cmd_bench_pipeline,
     cmd_compare,
-    cmd_detect,
-    cmd_score,
 )
-from bench.cli.exits import bug_report, end_quietly, stdout_closed
+from bench.cli.dataset import OPTION_OF_FIELD as DATASET_OPTION_OF_FIELD
+from bench.cli.dataset import add_dataset_options, cmd_bench_dataset, cmd_dataset
+from bench.cli.evaluate import add_detect_options, add_score_options, cmd_detect, cmd_score
+from bench.cli.exits import (
+    bug_report,
+    end_quietly,
+    environment_failure,
+    stdout_closed,
+    undecodable_argument,
+)
 from bench.cli.images import add_images_parser
 from bench.cli.ladder import add_ladder_parser
 from bench.cli.lens import add_lens_parser
@@ -55,7 +59,7 @@ from bench.study.config import (
     detector_from_option,
     profile_from_option,
 )
-from pipeline.backends import BACKENDS
+from pipeline.backends import BACKENDS, backend_name
 from scenes.profile import profile_path
 from scenes.validation import FieldError
 
@@ -171,10 +175,11 @@ def _add_study_options(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--detector",
-        choices=tuple(BACKENDS),
+        type=backend_name,
         default="opencv",
-        help="which library finds the markers: opencv (its subpix corners), or a peer with its "
-        "own corners, locus or apriltag (pip install -e '.[peers]') (default opencv)",
+        help=f"which library finds the markers: {', '.join(BACKENDS)} (the peers: pip install "
+        "-e '.[peers]'), or a plugin: module:function, path/file.py:function or an entry "
+        "point's name (docs/plugins.md) (default opencv, its subpix corners)",
     )
     p.add_argument(
         "--family",
@@ -250,7 +255,8 @@ def default_out(config: StudyConfig, quick: bool) -> Path:
             json.dumps(plain.to_json(), default=str, sort_keys=True).encode()
         ).hexdigest()[:8]
         name = f"custom-{digest}"
-    extra = [config.detector.backend] if config.detector.backend != "opencv" else []
+    backend = config.detector.backend.replace("/", "~")  # a plugin's file: no subfolder
+    extra = [backend] if backend != "opencv" else []
     extra += [config.dictionary] if config.dictionary != default.dictionary else []
     return RUNS / "detectability" / "-".join([name, *extra])
 
@@ -393,23 +399,6 @@ def command_name(args: argparse.Namespace) -> str:
     return " ".join([args.command, *(getattr(args, k) for k in subcommands if hasattr(args, k))])
 
 
-def _check_variant(requested: str | None) -> None:
-    """A ``--variant`` this machine cannot run (cuda_ad_rgb without a GPU, llvm_ad_rgb without
-    libLLVM) is refused before any command claims a folder; setting it here is what the command
-    would do first anyway (idempotent)."""
-    if requested is None:
-        return
-    from renderers.variant import gpu_present, select_variant
-
-    if requested.startswith("cuda") and not gpu_present():
-        raise FieldError("variant", f"{requested} needs an NVIDIA GPU; this machine has none")
-    try:
-        select_variant(requested)
-    except (ValueError, RuntimeError) as exc:
-        reason = str(exc).removeprefix("no Mitsuba variant could be set: ")
-        raise FieldError("variant", f"cannot be used on this machine: {reason}") from None
-
-
 def main(argv: list[str] | None = None) -> int:
     """Run one command; its exit code. A reader that closes stdout early (``| head -1``)
     wanted no more output: the command ends quietly, with SIGPIPE's shell exit code."""
@@ -417,7 +406,8 @@ def main(argv: list[str] | None = None) -> int:
         try:
             return _main(argv)
         finally:
-            sys.stdout.flush()  # a reader gone shows here, not at interpreter exit
+            if sys.stdout is not None:  # None: started with stdout closed (>&-)
+                sys.stdout.flush()  # a reader gone shows here, not at interpreter exit
     except BrokenPipeError:
         return end_quietly()
 
@@ -428,8 +418,12 @@ def _main(argv: list[str] | None) -> int:
     command = command_name(args)
     set_command_line(sys.argv[1:] if argv is None else argv)
     args.kept = "nothing was written"
+    odd = undecodable_argument(sys.argv[1:] if argv is None else [str(a) for a in argv])
+    if odd is not None:
+        print(f"whiskerbench {command}: error: {odd}", file=sys.stderr)
+        return 2
     try:
-        _check_variant(getattr(args, "variant", None))
+        check_variant(getattr(args, "variant", None))
         return args.func(args)
     except FieldError as exc:
         option = {**OPTION_OF_FIELD, **DATASET_OPTION_OF_FIELD}.get(exc.field, exc.field)
@@ -442,7 +436,8 @@ def _main(argv: list[str] | None) -> int:
     except Exception as exc:  # a bug, not the input: say so, briefly
         if isinstance(exc, BrokenPipeError) and stdout_closed():
             raise  # not a bug: main ends quietly
-        print(bug_report(command, exc), file=sys.stderr)
+        line = environment_failure(command, exc, args.kept)  # the system's, not a bug
+        print(line or bug_report(command, exc), file=sys.stderr)
         return 1
 
 

@@ -10,7 +10,7 @@ from bench.cli.args import check_out_folder
 from renderers.variant import VARIANTS
 from scenes.validation import FieldError
 
-#: Cycles' cost of one sample per pixel of a full frame, CPU s: a lower bound (README
+#: Cycles' cost of one sample per pixel of a full frame, CPU s: a lower bound (docs/performance.md,
 #: "Against Blender Cycles" measured 10.8 s at 4 spp on 2 cores) for the time limit of --spp.
 CYCLES_CPU_S_PER_SPP = 1.0
 #: Memory per sample per pixel, the limit of --spp, per scene. ``marker``: one full-frame row in

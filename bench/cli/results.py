@@ -1,6 +1,7 @@
 """``whiskerbench score DATASET --detections FILE_OR_DIR --name NAME``: another tool's results
-scored as a built-in pipeline's (``docs/results_format.md``; bad input: one line, exit code 2,
-nothing written)."""
+scored as a built-in pipeline's (``docs/results_format.md``), and ``score DATASET --pipeline
+branch-plugin:SPEC``: a branch finder's (``docs/plugins.md``); bad input: one line, exit code 2,
+nothing written."""
 
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from bench.cli.args import check_out_folder
+from bench.cli.hints import CSV, summary_hints
 from bench.dataset.verify import SAMPLE_ID
 from pipeline.presets import PRESETS
 from scenes.validation import FieldError
@@ -55,7 +57,7 @@ def cmd_score_results(args: argparse.Namespace, fail: Callable[[str], int], exec
     import dataclasses
 
     from bench.dataset.verify import verify_dataset
-    from bench.evaluate.results_file import read_detections
+    from bench.evaluate.results_file import read_detections, sample_facts
     from bench.evaluate.score import score_dataset
 
     if args.detections is None and args.branches is None:
@@ -125,6 +127,9 @@ def cmd_score_results(args: argparse.Namespace, fail: Callable[[str], int], exec
         f"{name}: {len(table)} samples, {len(refused)} refused: {accuracy}; {speed}; wrote "
         f"{out}/samples.csv and grid-*.png"
     )
+    recall = scored["recall"].mean() if len(scored) else float("nan")
+    for line in summary_hints(name, recall, len(refused), len(table), out / CSV):
+        print(line)
     for row in refused.itertuples():
         print(f"warning: {row.sample_id} refused: {row.refused_reason}", file=sys.stderr)
     return 0
@@ -153,18 +158,31 @@ def _score_branches(
     return 0
 
 
-def sample_facts(verified) -> dict:
-    """What each sample's detections are checked against: frames, image size, family size."""
-    from bench.evaluate.results_file import SampleFacts
-    from bench.evaluate.score import _array
-    from scenes.array import ArraySpec
-    from scenes.marker import get_dictionary
-    from scenes.profile import load_profile
+def cmd_score_branch_plugin(args: argparse.Namespace, fail: Callable[[str], int]) -> int:
+    """Score the branch finder ``args.pipeline`` (an outside method) on every sample."""
+    from bench.dataset.verify import verify_dataset
+    from bench.evaluate.branch_plugin import run_branch_plugin
+    from bench.evaluate.branches_file import score_branches
 
-    facts = {}
-    for sample_id, record in verified.records.items():
-        lens = load_profile(verified.folder / sample_id / "camera.json").lens
-        array = _array(record) or ArraySpec()
-        family = len(get_dictionary(array.dictionary).bytesList)
-        facts[sample_id] = SampleFacts(int(record["frames"]), lens.width_px, lens.height_px, family)
-    return facts
+    method = args.pipeline
+    out = args.out or args.dataset / "scores" / method.folder_name
+    try:
+        check_out_folder(out)
+        verified = verify_dataset(args.dataset)
+    except FieldError as exc:
+        return fail(f"--{exc.field}: {exc.detail}")
+    except (ValueError, FileNotFoundError) as exc:  # nothing written yet
+        return fail(str(exc))
+    args.kept = "nothing was written: the scores are written once every sample has run"
+    estimates, refused = run_branch_plugin(method.name, verified)  # BackendError: one line
+    table = score_branches(
+        method.name, verified, estimates, method.name, out, refused, plugin=method.name
+    )
+    correct = (table["outcome"] == "correct").mean()
+    print(
+        f"{method.name}: {len(table)} samples, {len(refused)} refused: branch outcome correct "
+        f"in {correct:.0%} (a branch finder: accuracy only); wrote {out}/samples.csv and grid-*.png"
+    )
+    for sample_id, why in refused.items():
+        print(f"warning: {sample_id} refused: {why}", file=sys.stderr)
+    return 0

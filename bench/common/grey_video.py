@@ -36,6 +36,7 @@ import cv2
 import numpy as np
 
 from bench.common.video import KEYFRAME_INTERVAL_S, open_capture
+from bench.common.video_bounds import check_stream
 
 
 class GreyVideo:
@@ -49,6 +50,11 @@ class GreyVideo:
         self.path = Path(path)
         self.seek = seek
         self._cap = open_capture(self.path)
+        try:
+            check_stream(self._cap, self.path)
+        except ValueError:
+            self._cap.release()
+            raise
         self.frame_count = int(self._cap.get(cv2.CAP_PROP_FRAME_COUNT))
         self.fps = float(self._cap.get(cv2.CAP_PROP_FPS))
         self.width = int(self._cap.get(cv2.CAP_PROP_FRAME_WIDTH))

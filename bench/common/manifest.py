@@ -22,6 +22,8 @@ from pathlib import Path
 from typing import Any
 
 from bench.common.atomic import write_json
+from scenes.bounded_read import read_json
+from scenes.input_limits import RECORD_BYTES, RECORD_DEPTH
 
 SCHEMA = 1
 MANIFEST = "manifest.json"
@@ -88,7 +90,7 @@ def read_manifest(folder: Path) -> dict | None:
     """``folder/manifest.json`` as a dict; None when there is none (or it is not a JSON object)."""
     path = Path(folder) / MANIFEST
     try:
-        record = json.loads(path.read_text())
+        record = read_json(path, RECORD_BYTES, RECORD_DEPTH)
     except (OSError, ValueError):  # absent, unreadable, or not JSON: nobody's claim
         return None
     return record if isinstance(record, dict) else None

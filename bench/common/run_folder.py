@@ -35,6 +35,8 @@ from pathlib import Path
 
 from bench.common.atomic import check_writable, clean_stale, new_run_id, run_id
 from bench.common.manifest import MANIFEST, kind_of, read_manifest
+from scenes.bounded_read import read_json
+from scenes.input_limits import RECORD_BYTES, RECORD_DEPTH
 from scenes.validation import FieldError
 
 #: The lock file of a run folder.
@@ -145,7 +147,7 @@ def check_not_input(path: Path, inputs: Iterable[Path], option: str = "--out") -
 def read_holder(folder: Path) -> dict | None:
     """The record in ``folder``'s lock file (its holder, or its last run); None if none."""
     try:
-        record = json.loads((Path(folder) / LOCK).read_text())
+        record = read_json(Path(folder) / LOCK, RECORD_BYTES, RECORD_DEPTH)
     except (OSError, ValueError):
         return None
     return record if isinstance(record, dict) else None

@@ -11,6 +11,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from bench.common.image_header import ImageHeaderError, read_bounded_image
+
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
 
 
@@ -22,23 +24,19 @@ def read_grey(path: Path, max_pixels: int) -> np.ndarray:
     """(H, W) uint8: the image as stored (no EXIF rotation), colour converted to grey (BT.601
     weights on the coded values).
 
-    16-bit and float images are refused, not converted: their scale and transfer curve are
-    unknown, and ``lines`` refinement reads intensities through one. Images over
-    ``max_pixels`` are refused too (OpenCV itself refuses over 2**30 before decoding).
+    Bounded before it is decoded (:func:`bench.common.image_header.read_bounded_image`): images
+    over ``max_pixels`` are refused, and so are 16-bit and float images, not converted: their
+    scale and transfer curve are unknown, and ``lines`` refinement reads intensities through one.
     """
-    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if image is None:
-        raise StillImageError(f"{path}: not a readable image")
-    if image.dtype != np.uint8:
-        raise StillImageError(
-            f"{path}: {image.dtype} pixels: refused; convert it to 8-bit with the camera's "
-            "transfer curve (sRGB unless the pipeline says /transfer=linear)"
-        )
-    height, width = image.shape[:2]
-    if height * width > max_pixels:
-        raise StillImageError(
-            f"{path}: {width} x {height} px is over the limit of {max_pixels / 1e6:g} MP"
-        )
+    try:
+        image = read_bounded_image(path, max_pixels)
+    except ImageHeaderError as exc:
+        raise StillImageError(f"{path}: {exc}") from None
+    return grey(image)
+
+
+def grey(image: np.ndarray) -> np.ndarray:
+    """(H, W) uint8 of a decoded 8-bit image: grey as it is, BGR(A) converted (BT.601)."""
     if image.ndim == 3 and image.shape[2] in (3, 4):
         code = cv2.COLOR_BGRA2GRAY if image.shape[2] == 4 else cv2.COLOR_BGR2GRAY
         return cv2.cvtColor(image, code)

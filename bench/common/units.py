@@ -17,6 +17,8 @@ from pathlib import Path
 
 from bench.common.atomic import write_json
 from bench.common.manifest import json_sha256, sha256
+from scenes.bounded_read import read_json
+from scenes.input_limits import RECORD_BYTES, RECORD_DEPTH
 
 #: The key of a record's hash of itself.
 RECORD_HASH = "record_sha256"
@@ -53,7 +55,7 @@ def payload(record: Mapping) -> dict:
 
 def _read(path: Path) -> dict | None:
     try:
-        record = json.loads(Path(path).read_text())
+        record = read_json(path, RECORD_BYTES, RECORD_DEPTH)  # bounded: a unit file is input
     except (OSError, ValueError):  # unreadable, truncated, emptied
         return None
     return record if isinstance(record, dict) else None

@@ -40,11 +40,14 @@ is recognized as truncated.
 
 from __future__ import annotations
 
+import errno
 import itertools
 import os
+import queue
 import subprocess
 import tempfile
-from collections.abc import Iterable, Iterator
+import threading
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from typing import IO, NamedTuple
 
@@ -56,6 +59,8 @@ import imageio_ffmpeg  # noqa: E402
 import numpy as np  # noqa: E402
 
 from bench.common.atomic import atomic_path
+from bench.common.video_bounds import StreamFacts, check_stream
+from scenes.bounded_read import NOT_UTF8, is_utf8
 
 DEFAULT_QP = 12
 PRESET = "ultrafast"
@@ -133,20 +138,24 @@ def _encode(
             count = _pipe_frames(proc.stdin, frames, shape)
         except BrokenPipeError:
             proc.wait()  # ffmpeg exited early: its log says why
-            raise RuntimeError(_ffmpeg_failure(out, proc.returncode, log)) from None
+            raise _ffmpeg_failure(out, proc.returncode, log) from None
         except BaseException:
             proc.kill()
             proc.wait()
             raise
         if proc.wait() != 0:
-            raise RuntimeError(_ffmpeg_failure(out, proc.returncode, log))
+            raise _ffmpeg_failure(out, proc.returncode, log)
     return count
 
 
-def _ffmpeg_failure(out: Path, returncode: int, log: IO[bytes]) -> str:
+def _ffmpeg_failure(out: Path, returncode: int, log: IO[bytes]) -> Exception:
+    """RuntimeError with ffmpeg's log; OSError when the log names a full disk (the
+    environment's failure, told as such by the command line)."""
     log.seek(0)
     message = log.read().decode(errors="replace").strip()[-2000:]
-    return f"ffmpeg failed (exit {returncode}) writing {out}: {message}"
+    if os.strerror(errno.ENOSPC) in message:
+        return OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(out))
+    return RuntimeError(f"ffmpeg failed (exit {returncode}) writing {out}: {message}")
 
 
 def _pipe_frames(pipe: IO[bytes], frames: Iterable[np.ndarray], shape: tuple[int, ...]) -> int:
@@ -191,14 +200,16 @@ def _ffmpeg_command(out: Path, shape: tuple[int, ...], fps: float, qp: int) -> l
 def read_video(path: Path) -> Iterator[np.ndarray]:
     """Yield the frames of a video as grey uint8 (H, W) images.
 
-    Raises ValueError when the file cannot be opened, or, after the last frame, when fewer frames
-    decoded than the container declares (a truncated or damaged file), so that a consumer never
-    silently gets part of a video.
+    Raises ValueError when the file cannot be opened, is over a bound or changes its frame
+    size (:func:`check_video`, before the first frame is decoded), or, after the last frame,
+    when fewer frames decoded than the container declares (a truncated or damaged file), so
+    that a consumer never silently gets part of a video.
     """
     cap = open_capture(path)
     declared = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
     count = 0
     try:
+        check_stream(cap, path)
         while True:
             ok, frame = cap.read()
             if not ok:
@@ -220,6 +231,7 @@ def video_info(path: Path) -> VideoInfo:
     """
     cap = open_capture(path)
     try:
+        check_stream(cap, path)
         declared = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
         fps = float(cap.get(cv2.CAP_PROP_FPS))
         width = int(cap.get(cv2.CAP_PROP_FRAME_WIDTH))
@@ -233,11 +245,24 @@ def video_info(path: Path) -> VideoInfo:
     return VideoInfo(count, fps, width, height)
 
 
+def check_video(path: Path) -> StreamFacts:
+    """The video's frame size and packet count, bounded before any frame is decoded
+    (:func:`bench.common.video_bounds.check_stream`): FileNotFoundError, or ValueError in one
+    line without the path."""
+    cap = open_capture(path)
+    try:
+        return check_stream(cap, path)
+    finally:
+        cap.release()
+
+
 def open_capture(path: Path) -> cv2.VideoCapture:
     """An opened FFmpeg capture of ``path``: FileNotFoundError, or ValueError in one line."""
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(path)
+    if not is_utf8(path):
+        raise ValueError(NOT_UTF8)
     log = cv2.utils.logging
     level = log.getLogLevel()
     log.setLogLevel(log.LOG_LEVEL_ERROR)  # a failed open is reported below, in one line
@@ -357,6 +382,59 @@ def _downscale(
     small = cv2.resize(frame, size, interpolation=cv2.INTER_AREA)
     factors = np.array([size[0] / width, size[1] / height])
     return small, (np.asarray(corners_px, dtype=float) + 0.5) * factors - 0.5
+
+
+class BackgroundWriter:
+    """Feeds frames to a video writer running in its own thread, so that encoding (ffmpeg's pipe,
+    OpenCV's drawing: both release the GIL) overlaps the caller's next frame.
+
+    ``write`` is called as ``write(frames)`` with an iterable that yields what :meth:`put` is
+    given, e.g. ``lambda frames: write_video(path, frames, fps)``. Used as a context manager: an
+    exception inside the block reaches ``write``'s iterable, so a video writer leaves no file, as
+    if its frames had raised; :attr:`count` is ``write``'s return value after the block.
+    """
+
+    _END = object()
+
+    def __init__(self, write: Callable[[Iterable[np.ndarray]], int], depth: int = 2) -> None:
+        self._write, self._queue = write, queue.Queue(maxsize=depth)
+        self._error: BaseException | None = None
+        self._ended = False
+        self.count = 0
+
+    def __enter__(self) -> BackgroundWriter:
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+        return self
+
+    def _frames(self) -> Iterator[np.ndarray]:
+        while (item := self._queue.get()) is not self._END:
+            if isinstance(item, BaseException):
+                raise item
+            yield item
+        self._ended = True
+
+    def _run(self) -> None:
+        try:
+            self.count = self._write(self._frames())
+        except BaseException as exc:  # handed to the caller's thread in put() or __exit__
+            self._error = exc
+            while not self._ended and self._queue.get() is not self._END:  # until the block ends
+                pass
+
+    def put(self, frame: np.ndarray) -> None:
+        """Queue one frame (waits while ``depth`` frames are waiting); raises the writer's error."""
+        if self._error is not None:
+            raise self._error
+        self._queue.put(frame)
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc is not None and self._error is None:
+            self._queue.put(RuntimeError("the frames' producer failed"))
+        self._queue.put(self._END)
+        self._thread.join()
+        if self._error is not None and exc is None:
+            raise self._error
 
 
 def _even(length: float) -> int:

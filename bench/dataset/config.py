@@ -280,12 +280,14 @@ class DatasetConfig:
 
     def to_json(self) -> dict:
         """Every field as JSON; ``camera`` is the profile's own JSON (name and every stage).
-        ``psf_scale`` only where it is not 1: a dataset made before the option keeps its
-        settings hash and resumes."""
+        ``psf_scale`` only where it is not 1 and ``sampling.adaptive`` only where true: a dataset
+        made before the option keeps its settings hash and resumes."""
         out = dataclasses.asdict(self)
         out["camera"] = self.camera.to_json()
         if self.psf_scale == 1:
             del out["psf_scale"]
+        if not self.sampling.adaptive:
+            del out["sampling"]["adaptive"]
         return out
 
     def settings_hash(self) -> str:

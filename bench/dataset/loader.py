@@ -24,7 +24,6 @@ the file.
 from __future__ import annotations
 
 import functools
-import json
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -37,7 +36,9 @@ from bench.common.manifest import MANIFEST, kind_of
 from bench.dataset.config import SAMPLE_FILES
 from bench.dataset.format import DatasetFormatError, check_format_version
 from bench.dataset.verify import VerifiedDataset, check_sample_id, read_record, verify_dataset
+from scenes.bounded_read import read_json
 from scenes.camera import FisheyeCamera
+from scenes.input_limits import RECORD_BYTES, RECORD_DEPTH
 from scenes.profile import CameraProfile
 from scenes.tables import LABELS, check_table
 
@@ -84,7 +85,7 @@ class Sample:
         """The camera twin the sample was recorded through (``camera.json``)."""
         path = self.folder / "camera.json"
         try:
-            data = json.loads(path.read_text())
+            data = read_json(path, RECORD_BYTES, RECORD_DEPTH)
         except (OSError, ValueError) as exc:
             raise DatasetFormatError(f"{path}: not readable JSON ({_line(exc)})") from None
         try:
@@ -263,7 +264,7 @@ def open_dataset(path: str | Path, verify: bool = False) -> Dataset:
             f"{manifest_path}: missing: not a dataset folder (made by `whiskerbench dataset`)"
         )
     try:
-        manifest = json.loads(manifest_path.read_text())
+        manifest = read_json(manifest_path, RECORD_BYTES, RECORD_DEPTH)
     except (OSError, UnicodeDecodeError, ValueError) as exc:
         raise DatasetFormatError(f"{manifest_path}: not valid JSON ({_line(exc)})") from None
     if not isinstance(manifest, dict):

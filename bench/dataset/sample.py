@@ -158,37 +158,38 @@ def sample_recorder(
 
 def run_sample(config: DatasetConfig, sample: SampleSpec, out_dir: Path) -> dict:
     """Simulate, render and label one sample into ``out_dir / sample_id``; return its record."""
-    from bench.common.video import read_video, write_preview, write_video
+    from bench.common.video import BackgroundWriter, write_preview, write_video
 
     t_start = time.perf_counter()
     folder = Path(out_dir) / sample.sample_id
     sim = simulate_sample(config, sample)
     t_sim = time.perf_counter()
 
-    # --- Frames: render, record, encode
+    # --- Frames: render, record; the video and its preview encode in threads meanwhile
     frames = sample_recorder(config, sample, sim)
     n_frames = len(sim.times_s)
-    t_frames = time.perf_counter()
-    n_written = write_video(
-        folder / "video.mp4", (frames.frame(f) for f in range(n_frames)), sim.motion.fps
+    truth = [corners_of_frame(sim.labels, f) for f in range(n_frames)]
+    captions = [f"frame {f}  t = {sim.times_s[f]:.3f} s" for f in range(n_frames)]
+    video = BackgroundWriter(lambda it: write_video(folder / "video.mp4", it, sim.motion.fps))
+    preview = BackgroundWriter(  # drawn on the frames as recorded, before the video's codec
+        lambda it: write_preview(
+            folder / "preview.mp4", it, *zip(*truth, strict=True), captions, sim.motion.fps
+        )
     )
+    t_frames = time.perf_counter()
+    with video, preview:
+        for f in range(n_frames):
+            frame = frames.frame(f)
+            video.put(frame)
+            preview.put(frame)
+    n_written = video.count
     twin_s = frames.optics_s + frames.sensor_s
-    encode_s = time.perf_counter() - t_frames - frames.render_s - twin_s
+    encode_s = time.perf_counter() - t_frames - frames.render_s - twin_s  # waiting on the writers
 
-    # --- Labels, camera, preview (drawn on the decoded video: what the pipeline will see)
+    # --- Labels, camera
     with atomic_path(folder / "labels.parquet") as tmp:
         sim.labels.to_parquet(tmp, index=False)
     write_json(folder / "camera.json", config.twin.to_json())
-    truth = [corners_of_frame(sim.labels, f) for f in range(n_written)]
-    write_preview(
-        folder / "preview.mp4",
-        read_video(folder / "video.mp4"),
-        [t[0] for t in truth],
-        [t[1] for t in truth],
-        [t[2] for t in truth],
-        [f"frame {f}  t = {sim.times_s[f]:.3f} s" for f in range(n_written)],
-        sim.motion.fps,
-    )
 
     timing = SampleTiming(
         frames=n_written,
@@ -222,7 +223,7 @@ def run_sample(config: DatasetConfig, sample: SampleSpec, out_dir: Path) -> dict
         "exposure_ms": config.exposure_ms,
         "exposure_applied": frames.exposure,  # config.exposure x the lighting preset's
         "camera_profile": config.camera.name,
-        "sampling": dataclasses.asdict(config.sampling),
+        "sampling": config.to_json()["sampling"],
         "region_px": dataclasses.asdict(frames.renderer.region),
         "rays_per_frame": frames.renderer.rays_per_frame,
         "array": config.array.to_json(),

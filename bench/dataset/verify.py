@@ -10,7 +10,6 @@ writer outside its folders.
 
 from __future__ import annotations
 
-import json
 import math
 import re
 from dataclasses import dataclass
@@ -21,6 +20,8 @@ from tqdm import tqdm
 from bench.common.manifest import MANIFEST, kind_of, read_manifest, sha256
 from bench.dataset.config import SAMPLE_FILES
 from bench.dataset.format import DatasetFormatError, check_format_version
+from scenes.bounded_read import read_json
+from scenes.input_limits import RECORD_BYTES, RECORD_DEPTH
 
 #: A sample id: a plain folder name (no separator, no leading dot, so never ``..``).
 SAMPLE_ID = re.compile(r"[A-Za-z0-9][A-Za-z0-9._+-]*")
@@ -133,7 +134,7 @@ def read_record(path: Path, sample_id: str) -> dict:
     """A ``sample.json`` (at ``path``, of ``sample_id``) with the keys scoring reads, checked;
     DatasetIntegrityError in one line naming the file otherwise. Its hashes are not checked."""
     try:
-        record = json.loads(path.read_text())
+        record = read_json(path, RECORD_BYTES, RECORD_DEPTH)
     except (OSError, ValueError) as exc:
         raise DatasetIntegrityError(f"{path}: not readable JSON ({exc})") from None
     if not isinstance(record, dict) or not all(k in record for k in RECORD_KEYS):

@@ -123,20 +123,26 @@ def score_branches(
     estimates: dict[str, list[list[int]]],
     name: str,
     out_dir: Path,
+    refused: dict[str, str] | None = None,
+    plugin: str | None = None,
 ) -> pd.DataFrame:
-    """Score the estimates; write ``samples.csv``, the grids and ``manifest.json`` (last)."""
-    from bench.evaluate.score import (
-        SCORED_COLUMNS,
-        branch_outcome,
-        plot_grid,
-        sample_columns,
-    )
+    """Score the estimates; write ``samples.csv``, the grids and ``manifest.json`` (last).
+
+    ``refused``: why each sample without estimates has none (a branch plugin that crashed on
+    it, :mod:`bench.evaluate.branch_plugin`); ``plugin``: that plugin's name, where the
+    estimates come from it and not from the file ``path``."""
+    from bench.evaluate.grid_plot import plot_grid
+    from bench.evaluate.score import SCORED_COLUMNS, branch_outcome, sample_columns
 
     out_dir = Path(out_dir)
     clock = RunClock()
     claim(out_dir, "score")
     rows = []
     for sample_id, record in verified.records.items():
+        if sample_id in (refused or {}):
+            reason = {"outcome": "refused", "refused_reason": refused[sample_id]}
+            rows.append({**sample_columns(record), **reason})
+            continue
         estimated = estimates[sample_id]
         rows.append(
             {
@@ -154,8 +160,11 @@ def score_branches(
             title = f"{name}: {protocol}, {lighting} (branches only, accuracy only)"
             plot_grid(part, out_dir / f"grid-{protocol}-{lighting}.png", title)
         written = [out_dir / "samples.csv", *out_dir.glob("grid-*.png")]
-        settings = {"branches": str(path), "name": name, "dataset": str(verified.folder)}
-        inputs = {**verified.inputs(), str(path): sha256(path)}
+        source = {"branches": str(path)} if plugin is None else {"branch_plugin": plugin}
+        settings = {**source, "name": name, "dataset": str(verified.folder)}
+        inputs = verified.inputs()
+        if plugin is None:
+            inputs[str(path)] = sha256(path)
         record = build_manifest(
             "score", clock, settings, inputs=inputs, outputs=hash_files(written, out_dir)
         )

@@ -2,8 +2,11 @@
 
 Per variant, measured in the same run on this machine:
 
-* **speed**: frames/s of detection and pose on full 2592 x 1944 frames with 13 markers, one
-  OpenCV thread (:mod:`bench.evaluate.speed`, the same frames for every variant);
+* **speed**: frames/s of detection and pose on frames of the dataset compared, one OpenCV
+  thread: runs of consecutive frames spread evenly over its samples, the variants alternating,
+  in repeated rounds; the median over rounds and the slowest and fastest round
+  (:mod:`bench.evaluate.timing`, ``docs/speed.md``; the frames in ``speed_frames.csv``, each
+  round in ``speed_rounds.csv``);
 * **accuracy on the dataset**: :func:`bench.score.score_dataset` on every sample (branch outcome
   with the none-twin threshold, marker recall, deflection, corner and pose errors);
 * **failure boundaries**: detection recall and pose error against angular position, marker tilt,
@@ -12,9 +15,15 @@ Per variant, measured in the same run on this machine:
   base point's PSF at each end of the band, so the report can say which leads hold across the
   lens' uncertain blur (:mod:`bench.evaluate.band`).
 
-Peer detectors (the ``locus`` and ``apriltag`` presets, any ``/detector=`` variant) run like
-every other pipeline; the report opens with who leads on each measure, peers beside the
-project's pipelines (:mod:`bench.evaluate.leaders`, also ``leaders.csv``).
+Peer detectors (the ``locus`` and ``apriltag`` presets, any ``/detector=`` variant) and detector
+plugins (``plugin:SPEC``) run, and are timed, like every other pipeline; results files
+(``results:PATH``) and branch finders (``branch-plugin:SPEC``) are scored on the dataset beside
+them (:mod:`bench.evaluate.outside`). The report opens with who leads on each measure, peers and
+outside methods beside the project's pipelines (:mod:`bench.evaluate.leaders`, also
+``leaders.csv``). A method whose backend fails (:class:`pipeline.backends.BackendError`: a
+plugin that raises, answers outside its contract, or crashes or hangs on image after image)
+keeps a row saying why (``failed``), with no measure, and the others go on; one that fails
+while timed drops out of the timing rounds and is not scored.
 
 The report (``report.md`` with PNG charts beside it) opens without a server. Per-sample outputs
 (detections tables and plots: bulk data) go to ``<dataset>/scores/<variant>/``, not beside the
@@ -23,7 +32,6 @@ report.
 
 from __future__ import annotations
 
-import json
 import os
 import platform
 import shutil
@@ -31,43 +39,37 @@ import time
 from pathlib import Path
 
 import cv2
-import matplotlib
+import pandas as pd
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-import pandas as pd  # noqa: E402
-
-from bench.common.atomic import atomic_path, write_bytes  # noqa: E402
-from bench.common.executor import TaskPool, effective_executor  # noqa: E402
-from bench.common.manifest import (  # noqa: E402
+from bench.common.atomic import atomic_path, write_bytes
+from bench.common.executor import TaskPool, effective_executor
+from bench.common.manifest import (
     RunClock,
     build_manifest,
     hash_files,
     write_manifest,
 )
-from bench.common.run_folder import claim, open_folder  # noqa: E402
-from bench.evaluate.band import band_section  # noqa: E402
-from bench.evaluate.leaders import is_peer, leader_lines, leaders  # noqa: E402
-from bench.evaluate.speed import (  # noqa: E402
-    SPEED_SAMPLE,
-    full_frames,
+from bench.common.run_folder import claim, open_folder
+from bench.evaluate.compare_report import OWN_POSE, render_report
+from bench.evaluate.leaders import leaders
+from bench.evaluate.outside import Method, OutsideMethod, prepare, score_outside
+from bench.evaluate.pareto import plot_pareto
+from bench.evaluate.timing import (
+    ROUND_COLUMNS,
+    RUN_FRAMES,
+    SPEED_COLUMNS,
+    SPEED_FRAMES,
+    SPEED_ROUNDS,
+    dataset_runs,
     one_opencv_thread,
-    time_pipeline,
+    runs_table,
+    speed_figures,
+    speed_of,
+    time_pipelines,
 )
-from pipeline.presets import PipelineConfig  # noqa: E402
-from renderers.variant import init_worker  # noqa: E402
-
-#: Accuracy measures on the dataset: column, label, whether higher is better.
-ACCURACY = (
-    ("correct_rate", "branch outcome correct (fraction of samples)", True),
-    ("recall", "marker recall", True),
-    ("deflection_err_mm", "deflection error (mm, median)", False),
-)
-
-
-#: The backend's own pose errors in the scores (NaN for OpenCV, which has none).
-OWN_POSE = ("own_rot_err_deg", "own_trans_err_mm")
+from pipeline.backends import BackendError
+from pipeline.presets import PipelineConfig
+from renderers.variant import init_worker
 
 
 def summarize(name: str, table: pd.DataFrame) -> dict:
@@ -96,94 +98,50 @@ def summarize(name: str, table: pd.DataFrame) -> dict:
         # the backend's own pose (NaN for OpenCV) and its crashes, where the scores have them
         **{c: float(table[c].median()) for c in OWN_POSE if c in table},
         **{c: int(table[c].sum()) for c in ("failed_frames",) if c in table},
+        "failed": "",
     }
 
 
-def pareto_front(speed: np.ndarray, accuracy: np.ndarray, higher_better: bool) -> np.ndarray:
-    """(N,) bool: points no other point beats in both speed and accuracy (ties do not beat).
-
-    A point without an accuracy (NaN: its pipeline refused every sample) is not on the front
-    and beats no other."""
-    acc = np.asarray(accuracy, float) * (1 if higher_better else -1)
-    speed = np.asarray(speed, float)
-    front = np.isfinite(acc)
-    for i in range(len(speed)):
-        better = (speed >= speed[i]) & (acc >= acc[i]) & ((speed > speed[i]) | (acc > acc[i]))
-        front[i] &= not better.any()
-    return front
-
-
-def plot_pareto(summary: pd.DataFrame, path: Path) -> None:
-    """Accuracy against speed, one panel per accuracy measure, the Pareto front drawn.
-
-    The front is computed over every pipeline, peers included; peers are hollow diamonds, the
-    project's pipelines filled circles (red on the front, grey behind it). A pipeline without
-    a value for a measure (it refused every sample) cannot be placed: the panel's title names
-    it, so no pipeline drops out of the chart unsaid."""
-    fig, axes = plt.subplots(1, len(ACCURACY), figsize=(5 * len(ACCURACY), 4), dpi=110)
-    speed = summary["fps"].to_numpy()
-    peer = summary["pipeline"].map(is_peer).to_numpy(bool)
-    for ax, (column, label, higher) in zip(axes, ACCURACY, strict=True):
-        acc = summary[column].to_numpy(float)
-        placed = np.isfinite(acc)
-        front = pareto_front(speed, acc, higher)
-        for mine, where, colour in (
-            (placed & ~front, "behind the front", "#9e9e9e"),
-            (front, "Pareto front", "#d62728"),
-        ):
-            ax.scatter(speed[mine & ~peer], acc[mine & ~peer], c=colour, s=45, label=where)
-            ax.scatter(speed[mine & peer], acc[mine & peer], marker="D", s=55, facecolors="none",
-                       edgecolors=colour, linewidths=1.6, label=f"peer, {where}")  # fmt: skip
-        order = np.argsort(speed[front])
-        ax.plot(speed[front][order], acc[front][order], "-", c="#d62728", lw=1)
-        names = summary["pipeline"].to_numpy()
-        for x, y, name in zip(speed[placed], acc[placed], names[placed], strict=True):
-            ax.annotate(name, (x, y), fontsize=7, xytext=(4, 3), textcoords="offset points")
-        if not placed.all():
-            ax.set_title(f"no value: {', '.join(names[~placed])}", fontsize=8)
-        if placed.any():  # an empty panel has no range to log-scale
-            ax.set_xscale("log")
-        ax.set_xlabel("frames/s, full 2592x1944 frames, one core")
-        ax.set_ylabel(label + ("" if higher else ", lower is better"))
-        ax.grid(alpha=0.3)
-    handles, labels = axes[0].get_legend_handles_labels()
-    shown = [(h, t) for h, t in zip(handles, labels, strict=True) if len(h.get_offsets())]
-    if shown:  # none when every pipeline refused every sample
-        axes[0].legend(*zip(*shown, strict=True), fontsize=7)
-    fig.suptitle("accuracy against speed (hollow diamonds: peer detectors)", fontsize=10)
-    fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png")
-    plt.close(fig)
+def failed_row(name: str, samples: int, reason: str) -> dict:
+    """The summary row of a method whose backend failed: its reason, no measure."""
+    nan = float("nan")
+    return {"pipeline": name, "samples": samples, "refused_samples": 0, "correct_rate": nan,
+            "recall": nan, **dict.fromkeys(SPEED_COLUMNS, nan), "failed": reason}  # fmt: skip
 
 
 def run_compare(
     dataset: Path,
-    pipelines: list[PipelineConfig],
+    pipelines: list[Method],
     out_dir: Path,
     sweep=None,
-    speed_frames: int = 30,
-    speed_seconds: float = 2.0,
+    speed_frames: int = SPEED_FRAMES,
+    speed_rounds: int = SPEED_ROUNDS,
     variant: str | None = None,
     workers: int = 1,
     executor: str = "pool",
     scheduler: str | None = None,
 ) -> pd.DataFrame:
-    """Measure every variant (speed, dataset accuracy, sweeps) and write the report.
+    """Measure every variant (speed, dataset accuracy, sweeps) and every outside method
+    (:mod:`bench.evaluate.outside`: dataset accuracy) and write the report.
 
-    Speed: the best of repeats over ``speed_frames`` full frames, run for ``speed_seconds``.
+    Speed: up to ``speed_frames`` frames of the dataset timed, the pipelines (detector
+    plugins too) alternating, ``speed_rounds`` rounds (:mod:`bench.evaluate.timing`), after
+    the dataset is verified; outside methods are not timed (a results file's own times are
+    its speed, else NaN: accuracy only).
     Before anything is written a peer that is not installed
     (:class:`pipeline.backends.BackendUnavailableError`) or a pipeline whose backend cannot
     detect the sweeps' or the dataset's family (ValueError) is refused; then the report
-    folder and every variant's score folder are claimed (ValueError if another command's) and
-    the dataset is verified, once (DatasetIntegrityError naming the file); ``manifest.json``
-    is written last. Scoring and sweeps run their tasks on ``executor``
-    (:class:`~bench.common.executor.TaskPool`), recorded in the manifest.
+    folder and every variant's score folder are claimed (ValueError if another command's),
+    the dataset is verified, once (DatasetIntegrityError naming the file), and the results
+    files are read and the branch finders resolved (ValueError); ``manifest.json`` is
+    written last. A method whose backend fails (BackendError), while timed or scored, gets a
+    ``failed`` row and is left out of the sweeps. Scoring and sweeps run their tasks on
+    ``executor`` (:class:`~bench.common.executor.TaskPool`), recorded in the manifest.
     """
     from bench.dataset.verify import verify_dataset
     from bench.evaluate.band import band_end_boundaries, sweep_band_values
     from bench.evaluate.score import dataset_family, dataset_psf_scale, for_family, score_dataset
-    from bench.evaluate.sweep_config import SweepConfig
+    from bench.evaluate.sweep_config import SweepConfig, sweep_options
     from bench.evaluate.sweep_report import boundaries, write_sweeps
     from bench.evaluate.sweeps import run_sweeps, sweep_pipelines
 
@@ -192,48 +150,73 @@ def run_compare(
     names = [p.name for p in pipelines]
     if len(set(names)) != len(names) or not names:
         raise ValueError(f"--pipelines: need distinct names, got {names}")
-    sweep_pipelines(pipelines, sweep)  # a missing peer or a family it cannot detect: refused now
+    own = [p for p in pipelines if isinstance(p, PipelineConfig)]  # detected, timed, swept
+    if own:  # a missing peer or a family it cannot detect: refused now
+        sweep_pipelines(own, sweep)
     family = dataset_family(dataset)
-    for pipeline in pipelines:
-        for_family(pipeline, family)  # the dataset's family too, before any claim
+    # the dataset's family too, before any claim; timed as they score, keyed by name
+    detecting = {p.name: for_family(p, family) for p in own}
     clock = RunClock()
     claim(out_dir, "compare")
     for pipeline in pipelines:
         claim(dataset / "scores" / pipeline.folder_name, "score")
     verified = verify_dataset(dataset)  # every file hashed once, before the speed frames
     with open_folder(out_dir, "compare", ("", "grids")):  # locked until the manifest is written
+        prepared = prepare(pipelines, verified)  # results files read, branch finders resolved
         chosen = init_worker(variant)
         t_start = time.perf_counter()
+        runs = dataset_runs(dataset, speed_frames) if detecting else []
+        rounds = pd.DataFrame(columns=list(ROUND_COLUMNS))  # none when only outside methods
+        failed: dict[str, str] = {}  # a method's failure, timed or scored: the others go on
+        if detecting:
+            timing = time_pipelines(runs, detecting, speed_rounds)
+            rounds, failed = timing.rounds, dict(timing.failed)
+        timed = runs_table(runs)
+        del runs
+        speed = speed_figures(rounds)
         # one pool scores every pipeline: a Dask cluster or worker processes start once
         pool = TaskPool(workers, executor=executor, scheduler=scheduler)
         with pool, one_opencv_thread():
-            images = full_frames(SPEED_SAMPLE, speed_frames)[0][1.0]
             rows, tables = [], {}
-            for pipeline in pipelines:
-                fps, _ = time_pipeline(images, SPEED_SAMPLE, pipeline, speed_seconds)
-                scores = dataset / "scores" / pipeline.folder_name
-                table = score_dataset(dataset, pipeline, scores, verified, pool=pool)
-                tables[pipeline.name] = table
-                rows.append({**summarize(pipeline.name, table), "fps": fps})
-            del images
+            for method in pipelines:
+                scores = dataset / "scores" / method.folder_name
+                try:
+                    if method.name in failed:  # while timed: not scored
+                        raise BackendError(failed[method.name])
+                    if isinstance(method, OutsideMethod):
+                        table, fps = score_outside(
+                            method, prepared.get(method.name), dataset, verified, pool
+                        )
+                        speeds = {**dict.fromkeys(SPEED_COLUMNS, float("nan")), "fps": fps}
+                    else:
+                        table = score_dataset(dataset, method, scores, verified, pool=pool)
+                        speeds = speed_of(speed, method.name)
+                except BackendError as exc:
+                    failed[method.name] = " ".join(str(exc).split())
+                    rows.append(failed_row(method.name, len(verified.records), failed[method.name]))
+                    continue
+                tables[method.name] = table
+                rows.append({**summarize(method.name, table), **speeds})
         summary = pd.DataFrame(rows)
+        swept = [p for p in own if p.name not in failed]
         pool_options = {"workers": workers, "executor": executor, "scheduler": scheduler}
         t_sweeps = time.perf_counter()
-        sweeps = run_sweeps(pipelines, sweep, variant, **pool_options)
+        sweeps = run_sweeps(swept, sweep, variant, **pool_options) if swept else pd.DataFrame()
         t_band = time.perf_counter()
         band_tables = {  # the boundary axes again, the base point's PSF at each band end
-            end.base_psf_scale: run_sweeps(pipelines, end, variant, **pool_options)
-            for end in sweep.band_end_sweeps()
+            end.base_psf_scale: run_sweeps(swept, end, variant, **pool_options)
+            for end in (sweep.band_end_sweeps() if swept else ())
         }
         band_s = time.perf_counter() - t_band
-        edges = boundaries(sweeps)
+        edges = boundaries(sweeps) if swept else pd.DataFrame()
         band_edges = band_end_boundaries(band_tables)
         band = sweep_band_values(sweeps, band_edges, tuple(band_tables)) if band_tables else None
         leads = leaders(summary, edges, band)
 
         out_dir.mkdir(parents=True, exist_ok=True)
-        written = write_sweeps(out_dir, sweeps, sweep, pipelines)
+        written = write_sweeps(out_dir, sweeps, sweep, swept) if swept else []
         frames = [("summary", summary), ("boundaries", edges), ("leaders", leads)]
+        frames += [("speed_frames", timed), ("speed_rounds", rounds)]
         if band_tables:
             frames += [
                 ("sweeps_band_ends", pd.concat(band_tables.values(), ignore_index=True)),
@@ -243,7 +226,7 @@ def run_compare(
             with atomic_path(out_dir / f"{name}.csv") as tmp:
                 frame.to_csv(tmp, index=False)
             written.append(out_dir / f"{name}.csv")
-        plot_pareto(summary, out_dir / "pareto.png")
+        plot_pareto(summary, out_dir / "pareto.png", dataset.name, sweep_options(sweep))
         grids = _copy_grids(dataset, pipelines, out_dir)
         meta = {
             "dataset": str(dataset),
@@ -253,7 +236,12 @@ def run_compare(
             "machine": platform.processor() or platform.machine(),
             "opencv": cv2.__version__,
             "wall_s": time.perf_counter() - t_start,
-            "speed_frames": speed_frames,
+            "speed": {
+                "frames": int(timed["timed"].sum()) if len(rounds) else 0,  # 0: nothing timed
+                "runs": int(timed["run"].nunique()),
+                "samples": int(timed["sample_id"].nunique()),
+                "rounds": speed_rounds,
+            },
             "dataset_psf_scale": dataset_psf_scale(dataset),
             "band": None
             if not band_tables
@@ -269,16 +257,19 @@ def run_compare(
                 f"{sweep.base_lighting}",
             },
         }
-        report = render_report(summary, tables, edges, leads, grids, meta)
+        report = render_report(summary, tables, edges, leads, grids, meta, failed)
         write_bytes(out_dir / "report.md", report.encode())
         written += [out_dir / "pareto.png", out_dir / "report.md"]
         written += [out_dir / "grids" / n for names in grids.values() for n in names]
         config = {
             "dataset": str(dataset),
-            "pipelines": [p.to_json() for p in pipelines],
+            "pipelines": [p.to_json() for p in own],
+            "outside": [m.name for m in pipelines if isinstance(m, OutsideMethod)],
+            "failed": failed,
             "sweep": sweep.to_json(),  # also in sweep_config.json, beside the sweep table
             "speed_frames": speed_frames,
-            "speed_seconds": speed_seconds,
+            "speed_rounds": speed_rounds,
+            "speed_run_frames": RUN_FRAMES,
         }
         record = build_manifest(
             "compare",
@@ -297,7 +288,7 @@ def run_compare(
     return summary
 
 
-def _copy_grids(dataset: Path, pipelines: list[PipelineConfig], out_dir: Path) -> dict:
+def _copy_grids(dataset: Path, pipelines: list[Method], out_dir: Path) -> dict:
     """Each variant's results grids, copied beside the report: {variant: [file names]}."""
     grids = {}
     for pipeline in pipelines:
@@ -316,114 +307,3 @@ def _copy_grids(dataset: Path, pipelines: list[PipelineConfig], out_dir: Path) -
     if not any(grids.values()) and (out_dir / "grids").is_dir():
         shutil.rmtree(out_dir / "grids")
     return grids
-
-
-def _markdown_table(frame: pd.DataFrame, floats: str = "{:.3g}") -> str:
-    cells = [
-        [floats.format(v) if isinstance(v, float) else str(v) for v in row]
-        for row in frame.itertuples(index=False)
-    ]
-    head = "| " + " | ".join(frame.columns) + " |\n|" + "---|" * len(frame.columns) + "\n"
-    return head + "".join("| " + " | ".join(row) + " |\n" for row in cells)
-
-
-def render_report(
-    summary: pd.DataFrame,
-    tables: dict[str, pd.DataFrame],
-    edges: pd.DataFrame,
-    leads: pd.DataFrame,
-    grids: dict[str, list[str]],
-    meta: dict,
-) -> str:
-    """The report's Markdown: who leads, the figures, the tables, where each variant fails."""
-    columns = [
-        "pipeline",
-        "fps",
-        "correct_rate",
-        "recall",
-        "deflection_err_mm",
-        "corner_err_px",
-        "rot_err_deg",
-        "trans_err_mm",
-        *[c for c in (*OWN_POSE, "failed_frames") if c in summary],
-        "false_positive_samples",
-        "false_negative_samples",
-        "refused_samples",
-        "false_detections",
-    ]
-    lines = [
-        "# Pipeline comparison",
-        "",
-        f"Dataset `{meta['dataset']}` ({meta['samples']} samples); speed on "
-        f"{meta['speed_frames']} full 2592x1944 frames with 13 markers, one OpenCV thread; "
-        f"{meta['cpu_count']} cores, OpenCV {meta['opencv']}, Mitsuba variant {meta['variant']}; "
-        f"the whole comparison took {meta['wall_s']:.0f} s.",
-        "",
-        "## Who leads",
-        "",
-        "Per measure, the leading pipeline, the best of the project's pipelines and the best "
-        "peer detector (`leaders.csv`); failure boundaries: how far recall stays >= 95 %.",
-        "",
-        *[f"- {line}" for line in leader_lines(leads)],
-        *[f"- {line}" for line in failed_frame_lines(tables)],
-        *[f"- {line}" for line in refused_lines(summary)],
-        "",
-        *band_section(leads, meta),
-        "## Accuracy against speed",
-        "",
-        "![accuracy against speed](pareto.png)",
-        "",
-        _markdown_table(summary[columns]),
-        "## Where each variant fails: recall and pose error against the imaging conditions",
-        "",
-        "Each axis varies one condition from a base point; dots are single seeds, lines their "
-        "mean, so a boundary whose seeds disagree is visible as spread.",
-        "",
-        "![sweeps](sweeps.png)",
-        "",
-        _markdown_table(edges),
-        "## Samples each variant gets wrong",
-        "",
-    ]
-    for name, table in tables.items():
-        wrong = table[table["outcome"] != "correct"]
-        lines.append(f"### {name}: {len(table) - len(wrong)}/{len(table)} correct")
-        lines.append("")
-        if len(wrong):
-            lines.append(
-                _markdown_table(wrong[["sample_id", "outcome", "estimated_gaps", "true_gaps"]])
-            )
-        lines += [f"![{name} {g}](grids/{g})" for g in grids.get(name, [])] + [""]
-    return "\n".join(lines) + "\n"
-
-
-def refused_lines(summary: pd.DataFrame) -> list[str]:
-    """A line per pipeline that refused every sample: it has no accuracy measure, so it leads
-    on none and has no point in the accuracy charts; the line says why instead."""
-    everything = summary[summary["refused_samples"] == summary["samples"]]
-    return [
-        f"{row.pipeline}: refused all {row.samples} samples (why: `refused_reason` in its "
-        "scores' samples.csv), so it has no accuracy measure"
-        for row in everything.itertuples()
-    ]
-
-
-def failed_frame_lines(tables: dict[str, pd.DataFrame]) -> list[str]:
-    """A line per peer: the frames its backend crashed on, per sample (from the scores'
-    ``failed_frames`` and ``failed_frame_ids``; NaN for a refused sample is no failure)."""
-    lines = []
-    for name, table in tables.items():
-        if not is_peer(name) or "failed_frames" not in table:
-            continue
-        failed = table[table["failed_frames"] > 0]
-        if failed.empty:
-            lines.append(f"{name}: no failed frames")
-            continue
-        where = "; ".join(
-            f"{r.sample_id} frames {', '.join(map(str, json.loads(r.failed_frame_ids)))}"
-            if "failed_frame_ids" in table
-            else f"{r.sample_id} ({int(r.failed_frames)} frames)"
-            for r in failed.itertuples()
-        )
-        lines.append(f"{name}: {int(failed['failed_frames'].sum())} failed frames: {where}")
-    return lines

@@ -10,7 +10,6 @@ is beside it).
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 import time
 from pathlib import Path
@@ -23,6 +22,15 @@ import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
 from bench.common.atomic import atomic_path, write_json  # noqa: E402
+from bench.common.figures import (  # noqa: E402
+    BLACK,
+    BLUE,
+    GREEN,
+    SKY_BLUE,
+    VERMILLION,
+    legend_outside,
+    save,
+)
 from bench.common.manifest import (  # noqa: E402
     RunClock,
     build_manifest,
@@ -35,7 +43,9 @@ from pipeline.branches import BranchEstimate, estimate_branches, online_threshol
 from pipeline.presets import PipelineConfig  # noqa: E402
 from pipeline.track import MarkerSet, pose_arrays, track  # noqa: E402
 from scenes.array import ArraySpec  # noqa: E402
+from scenes.bounded_read import read_json
 from scenes.camera import FisheyeCamera  # noqa: E402
+from scenes.input_limits import RECORD_BYTES, RECORD_DEPTH
 from scenes.tables import DETECTIONS, ordered  # noqa: E402
 
 
@@ -173,7 +183,7 @@ def _truth_gaps(video: Path) -> list[list[int]] | None:
     if not sample.exists():
         return None
     try:
-        record = json.loads(sample.read_text())
+        record = read_json(sample, RECORD_BYTES, RECORD_DEPTH)
     except ValueError as exc:
         raise ValueError(f"{sample}: not readable JSON ({exc})") from None
     return record.get("branch_gaps") if isinstance(record, dict) else None
@@ -185,22 +195,20 @@ def plot_estimate(
     """SPEC 3's plot: max deflection in contact, the curve, threshold, peaks and estimates."""
     n = len(est.curve)
     x = np.arange(n)
-    fig, ax = plt.subplots(figsize=(8, 3.6), dpi=110)
-    ax.bar(x, est.max_deflection, color="#9ecae1", label="max deflection in contact")
-    ax.plot(x, est.curve, "o-", color="#08519c", label=f"{est.aggregation} (scaled)")
-    ax.axhline(est.threshold_mm, color="#d62728", ls="--", label="threshold")
+    fig, ax = plt.subplots(figsize=(8, 3.6), layout="constrained")
+    ax.bar(x, est.max_deflection, color=SKY_BLUE, label="max deflection in contact")
+    ax.plot(x, est.curve, "o-", color=BLUE, label=f"{est.aggregation} (scaled)")
+    ax.axhline(est.threshold_mm, color=BLACK, ls="--", label="threshold")
     if est.peaks:
-        ax.plot(est.peaks, est.curve[est.peaks], "v", color="k", ms=9, label="peaks")
+        ax.plot(est.peaks, est.curve[est.peaks], "v", color=BLACK, ms=9, label="peaks")
     for k, (i, _) in enumerate(est.gaps):
-        ax.axvline(i + 0.5, color="#ff7f0e", lw=2, label="estimate" if k == 0 else None)
+        ax.axvline(i + 0.5, color=VERMILLION, lw=2, label="estimate" if k == 0 else None)
     for k, (i, _) in enumerate(truth or []):
-        ax.axvline(i + 0.5, color="#2ca02c", ls=":", lw=2, label="true branch" if k == 0 else None)
+        ax.axvline(i + 0.5, color=GREEN, ls=":", lw=2, label="true branch" if k == 0 else None)
     ax.set_xticks(x)
     ax.set_xlabel("whisker")
     ax.set_ylabel("mm")
     ax.set_title(title, fontsize=9)
-    ax.legend(fontsize=7, loc="upper left")
-    fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png")
-    plt.close(fig)
+    handles, labels = ax.get_legend_handles_labels()
+    legend_outside(fig, handles, labels, fontsize=7)
+    save(fig, path)

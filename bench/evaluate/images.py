@@ -42,16 +42,18 @@ from bench.common.video import draw_preview
 from pipeline.backends import BackendCrashError
 from pipeline.detect import detect_markers
 from pipeline.presets import PipelineConfig
+from scenes.bounded_read import NOT_UTF8, is_utf8
 from scenes.camera import FisheyeCamera, pinhole_camera
+from scenes.input_limits import FRAME_PIXELS, IMAGES_PER_RUN, TRUTH_CSV_BYTES
 from scenes.marker import get_dictionary
 
 KIND = "detect-images"
 #: Most images one run reads: bounds the detections table and the manifest's digests.
-MAX_IMAGES = 10_000
+MAX_IMAGES = IMAGES_PER_RUN
 #: Largest image read (pixels): a 100 MP photograph; its colour decode is 300 MB.
-MAX_IMAGE_PIXELS = 100_000_000
+MAX_IMAGE_PIXELS = FRAME_PIXELS
 #: Largest truth file read: a row is about 100 bytes, so a million markers.
-MAX_TRUTH_BYTES = 100 << 20
+MAX_TRUTH_BYTES = TRUTH_CSV_BYTES
 CORNER_COLUMNS = tuple(f"{axis}{k}" for k in range(4) for axis in "xy")  # x0, y0, ..., y3
 KEY = ("image", "marker_id")
 TRUTH_COLUMNS = (*KEY, *CORNER_COLUMNS)
@@ -99,6 +101,8 @@ def image_files(paths: Sequence[Path]) -> list[Path]:
             "images by file name, so give each once"
         )
     for path in files:
+        if not is_utf8(path):
+            raise ImageInputError(f"{path}: {NOT_UTF8}")
         if not cv2.haveImageReader(str(path)):
             raise ImageInputError(f"{path}: not a readable image")
     return files
@@ -109,8 +113,10 @@ def read_truth(path: Path, files: Sequence[Path], dictionary: str) -> Truth:
     corners in ArUco order and the project's pixel convention), fully checked: every refusal
     names the line and the column."""
     path = Path(path)
-    if not path.is_file():
-        raise ImageInputError(f"{path}: no such file")
+    if not path.is_file():  # a FIFO or device would block or never end
+        raise ImageInputError(
+            f"{path}: {'not a regular file' if path.exists() else 'no such file'}"
+        )
     if path.stat().st_size > MAX_TRUTH_BYTES:
         raise ImageInputError(f"{path}: larger than {MAX_TRUTH_BYTES >> 20} MiB")
     try:

@@ -23,10 +23,11 @@ import pandas as pd
 
 from bench.common.manifest import sha256
 from bench.dataset.verify import SAMPLE_ID, VerifiedDataset
+from scenes.input_limits import RESULTS_FILE_BYTES
 from scenes.tables import CORNER_COLUMNS, ROTATION_COLUMNS, TRANSLATION_COLUMNS
 
 #: Largest results file read (bytes), and most rows in all files together.
-MAX_FILE_BYTES = 1 << 30
+MAX_FILE_BYTES = RESULTS_FILE_BYTES
 MAX_ROWS = 10_000_000
 SUFFIXES = (".csv", ".parquet")
 #: How far (px) past the image's edge ([-0.5, W - 0.5] x [-0.5, H - 0.5]) a corner may lie.
@@ -312,3 +313,19 @@ def frames_per_s(table: pd.DataFrame, fps: float | None) -> float | None:
     per_frame = table.groupby("frame")[TIME_COLUMN].first()
     total = float(per_frame.sum())
     return len(per_frame) / total if total > 0 and math.isfinite(total) else None
+
+
+def sample_facts(verified: VerifiedDataset) -> dict[str, SampleFacts]:
+    """What each sample's detections are checked against: frames, image size, family size."""
+    from bench.evaluate.score import _array
+    from scenes.array import ArraySpec
+    from scenes.marker import get_dictionary
+    from scenes.profile import load_profile
+
+    facts = {}
+    for sample_id, record in verified.records.items():
+        lens = load_profile(verified.folder / sample_id / "camera.json").lens
+        array = _array(record) or ArraySpec()
+        family = len(get_dictionary(array.dictionary).bytesList)
+        facts[sample_id] = SampleFacts(int(record["frames"]), lens.width_px, lens.height_px, family)
+    return facts

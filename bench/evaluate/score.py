@@ -23,14 +23,10 @@ from contextlib import nullcontext
 from dataclasses import dataclass
 from pathlib import Path
 
-import matplotlib
+import numpy as np
+import pandas as pd
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-import pandas as pd  # noqa: E402
-
-from bench.common.atomic import atomic_path  # noqa: E402
+from bench.common.atomic import atomic_path
 from bench.common.executor import TaskPool  # noqa: E402
 from bench.common.manifest import (  # noqa: E402
     RunClock,
@@ -42,6 +38,7 @@ from bench.common.manifest import (  # noqa: E402
 )
 from bench.common.run_folder import claim, open_folder  # noqa: E402
 from bench.dataset.verify import VerifiedDataset, verify_dataset  # noqa: E402
+from bench.evaluate.grid_plot import plot_grid
 from bench.evaluate.results_file import ExternalDetections, frames_per_s  # noqa: E402
 from pipeline.presets import PipelineConfig  # noqa: E402
 from scenes.array import ArraySpec  # noqa: E402
@@ -408,43 +405,3 @@ def _external_of(
         return None, None
     rows = external.tables[sample_id]
     return rows, frames_per_s(rows, fps)
-
-
-def plot_grid(table: pd.DataFrame, path: Path, title: str) -> None:
-    """A results table as an image: rows foliage x distance, columns branch configuration,
-    green = correct, red = not (FP / FN written in the cell), grey = refused by the pipeline."""
-    rows = sorted({(f, d) for f, d in zip(table["foliage"], table["distance"], strict=True)})
-    cols = sorted(set(table["branches"]), key=lambda b: (b != "none", len(b), b))
-    fig, ax = plt.subplots(figsize=(1.1 * len(cols) + 2, 0.45 * len(rows) + 1.2), dpi=110)
-    for r, (foliage, distance) in enumerate(rows):
-        for c, branches in enumerate(cols):
-            hit = table[
-                (table["foliage"] == foliage)
-                & (table["distance"] == distance)
-                & (table["branches"] == branches)
-            ]
-            if hit.empty:
-                continue
-            outcome = hit["outcome"].iloc[0]
-            ok = outcome == "correct"
-            colour = "#74c476" if ok else "#bdbdbd" if outcome == "refused" else "#fb6a4a"
-            ax.add_patch(plt.Rectangle((c, r), 1, 1, color=colour))
-            text = (
-                ""
-                if ok
-                else outcome.replace("false_positive", "FP")
-                .replace("false_negative", "FN")
-                .replace("+", " ")
-            )
-            ax.text(c + 0.5, r + 0.5, text, ha="center", va="center", fontsize=7)
-    ax.set_xlim(0, len(cols))
-    ax.set_ylim(len(rows), 0)
-    ax.set_xticks(np.arange(len(cols)) + 0.5, cols, fontsize=8)
-    ax.set_yticks(np.arange(len(rows)) + 0.5, [f"{f} {d}" for f, d in rows], fontsize=8)
-    ax.set_xlabel("branches (mm)")
-    ax.set_title(title, fontsize=9)
-    ax.tick_params(length=0)
-    fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png")
-    plt.close(fig)

@@ -243,6 +243,28 @@ QUICK_SWEEP = SweepConfig(
 )
 
 
+def sweep_options(sweep: SweepConfig) -> list[str]:
+    """How ``sweep`` differs from the default, for the comparison's figure titles: ``--quick``
+    or ``--seeds N`` as the command line spells them, and the camera and marker family where
+    they are not the defaults (``compare`` takes them from the dataset)."""
+    default = SweepConfig()
+    fitted = {
+        "camera": sweep.camera,
+        "alphas_deg": sweep.alphas_deg,
+        "dictionary": sweep.dictionary,
+    }
+    options = []
+    if sweep.camera != default.camera:
+        options.append(f"camera {sweep.camera.name}")
+    if sweep.dictionary != default.dictionary:
+        options.append(f"family {sweep.dictionary}")
+    if sweep == dataclasses.replace(QUICK_SWEEP, **fitted):
+        options.append("--quick")
+    elif sweep.seeds != default.seeds:
+        options.append(f"--seeds {sweep.seeds}")
+    return options
+
+
 @dataclass(frozen=True)
 class SweepPoint:
     """One (axis, level): the marker pose, lighting, blur, noise and lens PSF it is rendered

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from collections.abc import Sequence
 from pathlib import Path
 
 import matplotlib
@@ -13,6 +14,7 @@ from bench.evaluate.sweep_config import (  # noqa: E402
     NUMERIC_AXES,
     RECALL_OK,
     SweepConfig,
+    sweep_options,
 )
 from pipeline.presets import PipelineConfig  # noqa: E402
 
@@ -22,6 +24,7 @@ import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
 from bench.common.atomic import atomic_path, write_json  # noqa: E402
+from bench.common.figures import colour, legend_outside, marker, save, titled  # noqa: E402
 
 
 def boundaries(table: pd.DataFrame, threshold: float = RECALL_OK) -> pd.DataFrame:
@@ -110,19 +113,23 @@ _AXIS_LABELS = {
 }
 
 
-def plot_sweeps(table: pd.DataFrame, path: Path) -> None:
+def plot_sweeps(table: pd.DataFrame, path: Path, options: Sequence[str] = ()) -> None:
     """One PNG: recall (top) and median rotation error (bottom, log) against each axis.
 
-    One colour per pipeline: the line is the mean over seeds (dashed for peer detectors), the
-    dots each seed's value, so the seed spread is visible; the black dashed line is the 95 %
-    recall threshold. Written atomically.
+    One colour per pipeline (Okabe-Ito; past eight a marker shape tells a repeated colour
+    apart): the line is the mean over seeds (dashed for peer detectors), the dots each seed's
+    value, so the seed spread is visible; the black dashed line is the 95 % recall threshold.
+    The legend stands right of the panels; the title names the run's non-default ``options``.
+    Written atomically.
     """
     pipelines = list(dict.fromkeys(table["pipeline"]))
-    colours = {p: plt.get_cmap("tab10")(i % 10) for i, p in enumerate(pipelines)}
+    colours = {p: colour(i) for i, p in enumerate(pipelines)}
+    markers = {p: marker(i) for i, p in enumerate(pipelines)}
     axes_present = [a for a in AXES if a in set(table["axis"])]
     fig, grid = plt.subplots(
-        2, len(axes_present), figsize=(3.3 * len(axes_present), 6.2), dpi=110, squeeze=False
-    )
+        2, len(axes_present), figsize=(3.3 * len(axes_present), 6.2), squeeze=False,
+        layout="constrained",
+    )  # fmt: skip
     for c, axis in enumerate(axes_present):
         part = table[table["axis"] == axis]
         if axis == "lighting":
@@ -142,13 +149,14 @@ def plot_sweeps(table: pd.DataFrame, path: Path) -> None:
             nudge = (k - (len(pipelines) - 1) / 2) * spread
             width = 1.0 + 2.2 * (len(pipelines) - 1 - k) / max(len(pipelines) - 1, 1)
             # categories are not joined by lines; peers' lines are dashed
-            style = "o" if axis == "lighting" else "--" if is_peer(pipeline) else "-"
+            style = "none" if axis == "lighting" else "--" if is_peer(pipeline) else "-"
             for r, column in enumerate(("recall", "rot_err_deg")):
                 ax = grid[r, c]
                 mean = mine.groupby("x")[column].mean().sort_index()
                 label = pipeline if (r, c) == (0, 0) else None
-                ax.plot(mean.index, mean.to_numpy(), style, color=colours[pipeline], lw=width,
-                        ms=2 + 1.5 * width, mfc="none", label=label)  # fmt: skip
+                ax.plot(mean.index, mean.to_numpy(), ls=style, color=colours[pipeline], lw=width,
+                        marker=markers[pipeline], ms=2 + 1.5 * width, mfc="none",
+                        label=label)  # fmt: skip
                 ax.plot(mine["x"] + nudge, mine[column], ".", color=colours[pipeline], ms=3,
                         alpha=0.55)  # fmt: skip
         top, bottom = grid[0, c], grid[1, c]
@@ -165,12 +173,11 @@ def plot_sweeps(table: pd.DataFrame, path: Path) -> None:
             ax.grid(alpha=0.3, lw=0.5)
     grid[0, 0].set_ylabel("recall")
     grid[1, 0].set_ylabel("median rotation error (deg)")
-    grid[0, 0].legend(fontsize=7, loc="lower left")
-    fig.suptitle("recall and pose error per axis: line = mean over seeds, dots = seeds", fontsize=9)
-    fig.tight_layout()
-    with atomic_path(Path(path)) as tmp:
-        fig.savefig(tmp, format="png")
-    plt.close(fig)
+    handles, labels = grid[0, 0].get_legend_handles_labels()
+    legend_outside(fig, handles, labels, fontsize=7, title="pipeline", title_fontsize=8)
+    title = "Recall and pose error per axis: line = mean over seeds, dots = seeds"
+    fig.suptitle(titled(title, options), fontsize=9)
+    save(fig, Path(path))
 
 
 def write_sweeps(
@@ -186,5 +193,5 @@ def write_sweeps(
         table.to_csv(tmp, index=False)
     record = {"config": config.to_json(), "pipelines": [p.to_json() for p in pipelines]}
     write_json(out_dir / "sweep_config.json", json.loads(json.dumps(record, default=str)))
-    plot_sweeps(table, out_dir / "sweeps.png")
+    plot_sweeps(table, out_dir / "sweeps.png", sweep_options(config))
     return [out_dir / n for n in ("sweeps.csv", "sweep_config.json", "sweeps.png")]

@@ -78,7 +78,7 @@ from bench.common.marker_score import MarkerTruth, score_corners
 from bench.evaluate.sweep_config import NUMERIC_AXES, SweepConfig, SweepPoint
 from bench.study.cells import CellRender, camera_images, render_cell
 from bench.study.config import Cell
-from pipeline.backends import BackendCrashError, require
+from pipeline.backends import BackendCrashError, BackendError, require
 from pipeline.detect import detect_markers
 from pipeline.presets import PipelineConfig
 from renderers.camera_twin import optical_image
@@ -139,15 +139,17 @@ def score_images(
     Errors as in the study (:mod:`bench.common.marker_score`); medians are over the images
     where the right id was found (pose errors: where the pose could also be solved). The
     backend's own pose, where it has one, is scored beside the project's (``own_*``; NaN for
-    OpenCV). An image on which the backend crashes (:class:`BackendCrashError`) is counted in
-    ``backend_failures`` and left out of ``recall``: it is neither found nor missed.
+    OpenCV). An image on which the backend crashes (:class:`BackendCrashError`) or fails
+    (:class:`BackendError`: a plugin that raises or answers outside its contract) is counted in
+    ``backend_failures`` and left out of ``recall``: it is neither found nor missed, and the
+    other pipelines' sweeps go on.
     """
     hits = false_ids = pose_failures = failures = 0
     errors: dict[str, list[float]] = {k: [] for k in _MEDIANS}
     for image in images:
         try:
             detections = detect_markers(image, pipeline.detector, origin_px, lens, truth.size_mm)
-        except BackendCrashError:
+        except (BackendCrashError, BackendError):
             failures += 1
             continue
         match = [d for d in detections if d.marker_id == truth.marker_id]

@@ -126,3 +126,33 @@ class LadderConfig:
     def settings_hash(self) -> str:
         """The hash of the config's JSON: the folder's, and each rung's record's."""
         return json_sha256(self.to_json())
+
+
+#: The command-line option that sets each field (``whiskerbench ladder``).
+OPTION_OF_FIELD = {
+    "parts": "--parts",
+    "images": "--images",
+    "frames_step": "--frames-step",
+    "profile": "--profile",
+    "video_axes": "--video-axes",
+    "seed": "--seed",
+    "reference_spp": "--reference-spp",
+    "path_depth": "--path-depth",
+    "spps": "--spp",
+    "pipeline": "--pipeline",
+}
+
+
+def ladder_options(config: LadderConfig) -> list[str]:
+    """The options that make ``config`` differ from the default ladder, as the command line
+    spells them (``--quick --spp 1,2``), for the chart's title."""
+    given = {name: getattr(config, name) for name in OPTION_OF_FIELD}
+    quick = config == LadderConfig.quick(**given)
+    base = LadderConfig.quick() if quick else LadderConfig()
+    options = ["--quick"] if quick else []
+    for name, flag in OPTION_OF_FIELD.items():
+        value = getattr(config, name)
+        if value != getattr(base, name):
+            shown = ",".join(map(str, value)) if isinstance(value, tuple) else str(value)
+            options.append(f"{flag} {shown}")
+    return options

@@ -7,6 +7,7 @@ and scoring over its images; video: render and camera over its frames).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 
 import matplotlib
@@ -17,6 +18,7 @@ import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 from matplotlib.ticker import FormatStrFormatter  # noqa: E402
 
+from bench.common.figures import BLACK, BLUE, VERMILLION, legend_outside, save, titled  # noqa: E402
 from bench.ladder.match import knee, rung_matches  # noqa: E402
 from bench.ladder.rungs import CHECKS, current_default  # noqa: E402
 
@@ -89,21 +91,34 @@ def markdown(rungs: pd.DataFrame, defaults: pd.DataFrame) -> str:
     return "## Rungs\n\n" + _md(shown) + "\n\n## Defaults\n\n" + _md(defaults) + "\n"
 
 
-def plot(rungs: pd.DataFrame, defaults: pd.DataFrame, path: Path) -> None:
+def plot(
+    rungs: pd.DataFrame, defaults: pd.DataFrame, path: Path, options: Sequence[str] = ()
+) -> None:
     """Outcome error (worst |rate - reference rate| over cells) against seconds per image, one
-    panel per (part, axis), log time; the reference a star, the knee circled."""
+    panel per (part, axis), log time; the reference a star, the knee circled; a rung that
+    matches the reference a blue dot, one that does not a vermillion cross (told apart by
+    shape and by colour-blind readers too). The title names the run's non-default
+    ``options``; the legend stands right of the panels."""
     panels = list(_choices(rungs).groupby(["part", "axis"], sort=False).groups)
     n = max(1, len(panels))
     cols = min(3, n)
     fig, axes = plt.subplots(
-        (n + cols - 1) // cols, cols, figsize=(4.2 * cols, 3.2 * ((n + cols - 1) // cols))
+        (n + cols - 1) // cols,
+        cols,
+        figsize=(4.2 * cols, 3.2 * ((n + cols - 1) // cols)),
+        layout="constrained",
     )
     axes = np.atleast_1d(axes).ravel()
     for ax, (part, axis) in zip(axes, panels, strict=False):
         group = rungs[(rungs["part"] == part) & (rungs["axis"] == axis)]
         ref = rungs[(rungs["part"] == part) & (rungs["axis"] == "reference")]
-        colours = np.where(group["matches_reference"], "tab:green", "tab:red")
-        ax.scatter(group["s_per_image"], group["rate_err_max"], c=colours, zorder=3)
+        for matches, shape, colour, label in (
+            (True, "o", BLUE, "matches the reference"),
+            (False, "X", VERMILLION, "does not match"),
+        ):
+            mine = group[group["matches_reference"] == matches]
+            ax.scatter(mine["s_per_image"], mine["rate_err_max"], marker=shape, c=colour,
+                       zorder=3, label=label)  # fmt: skip
         for row in group.itertuples():
             ax.annotate(row.rung, (row.s_per_image, row.rate_err_max), fontsize=7,
                         xytext=(3, 3), textcoords="offset points")  # fmt: skip
@@ -114,7 +129,7 @@ def plot(rungs: pd.DataFrame, defaults: pd.DataFrame, path: Path) -> None:
         hit = group[group["rung"] == name]
         if len(hit):
             ax.scatter(hit["s_per_image"], hit["rate_err_max"], s=260, facecolors="none",
-                       edgecolors="tab:blue", linewidths=2, label="knee", zorder=5)  # fmt: skip
+                       edgecolors=BLACK, linewidths=2, label="knee", zorder=5)  # fmt: skip
         ax.set_xscale("log")
         # narrow ranges have no decade tick: label every tick, small
         ax.xaxis.set_major_formatter(FormatStrFormatter("%.3g"))
@@ -124,10 +139,13 @@ def plot(rungs: pd.DataFrame, defaults: pd.DataFrame, path: Path) -> None:
         ax.set_xlabel("wall s per image")
         ax.set_ylabel("max |rate - ref|")
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=7)
     for ax in axes[len(panels) :]:
         ax.axis("off")
-    fig.suptitle("Fidelity ladder: outcome error against cost (green: matches the reference)")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    labelled = {}
+    for ax in axes[: len(panels)]:
+        for handle, label in zip(*ax.get_legend_handles_labels(), strict=True):
+            labelled.setdefault(label, handle)
+    legend_outside(fig, list(labelled.values()), list(labelled), fontsize=8)
+    title = "Fidelity ladder: outcome error against cost (each rung against the reference)"
+    fig.suptitle(titled(title, options))
+    save(fig, path)

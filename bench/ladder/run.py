@@ -15,7 +15,7 @@ from bench.common.manifest import hash_files
 from bench.common.resumable import ResumableRun, finish_run, open_run
 from bench.common.units import payload
 from bench.ladder import report, study_part, video_part
-from bench.ladder.config import LadderConfig
+from bench.ladder.config import LadderConfig, ladder_options
 from bench.ladder.rungs import Rung, study_rungs, video_rungs
 from scenes.profile import load_profile
 
@@ -100,7 +100,7 @@ def run_ladder(
     write_bytes(out_dir / "defaults.csv", defaults.to_csv(index=False).encode())
     write_bytes(out_dir / "table.md", report.markdown(per_rung, defaults).encode())
     with atomic_path(out_dir / "ladder.png") as tmp:
-        report.plot(per_rung, defaults, tmp)
+        report.plot(per_rung, defaults, tmp, ladder_options(config))
     write_json(out_dir / "config.json", config.to_json())
     return finish_run(
         run,

@@ -30,7 +30,8 @@ from bench.ladder.rungs import Rung, render_groups, stage_off
 from bench.study.report import wilson_interval
 from renderers.camera_twin import pixel_gain
 from renderers.frame_sampling import FrameSampling
-from renderers.frames import FrameRecorder, TwinRecorder
+from renderers.frames import FrameRecorder
+from renderers.twin_recorder import TwinRecorder
 from scenes.branch_reach import gap_of_branch
 from scenes.profile import CameraProfile, load_profile
 from scenes.vegetation import build_vegetation
@@ -63,7 +64,7 @@ def sampling_of(options: dict) -> FrameSampling:
 class Replay:
     """Records radiance that ``source`` rendered through another profile (a camera-stage rung):
     the per-pixel optics the renderer applied are swapped for ``profile``'s, then a
-    :class:`~renderers.frames.TwinRecorder` records it, with the sample's own noise seed."""
+    :class:`~renderers.twin_recorder.TwinRecorder` records it, with the sample's own noise seed."""
 
     def __init__(self, source: FrameRecorder, profile: CameraProfile, noise_seed: int) -> None:
         region = source.renderer.region

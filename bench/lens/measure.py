@@ -20,12 +20,12 @@ from collections import Counter
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 
-import cv2
 import numpy as np
 from tqdm import tqdm
 
-from bench.common.stills import IMAGE_SUFFIXES
-from bench.common.video import read_video
+from bench.common.stills import IMAGE_SUFFIXES, StillImageError, read_grey
+from bench.common.video import check_video, read_video
+from bench.common.video_bounds import VideoBoundsError
 from bench.lens.calibrate import lens_variance, needs_calibration, processing_curve
 from bench.lens.edges import PIXEL_VARIANCE_PX2, edge_geometry, edge_samples, fit_edges
 from bench.lens.jpeg import stream_report
@@ -34,6 +34,8 @@ from bench.lens.profile import with_noise, with_psf, with_stream
 from bench.lens.psf import solve_bins
 from pipeline.detect import DetectorConfig, detect_markers
 from pipeline.refine import LINEAR_LUTS  # code -> linear light per transfer curve
+from scenes.bounded_read import NOT_UTF8, is_utf8
+from scenes.input_limits import FRAME_PIXELS
 from scenes.marker import check_dictionary
 from scenes.profile import CameraProfile
 from scenes.validation import FieldError
@@ -57,7 +59,16 @@ class FootageError(ValueError):
 
 
 def footage_files(footage: str | Path | Sequence[str | Path]) -> tuple[list[Path], bool]:
-    """The footage's files and whether they are still images (else one video file)."""
+    """The footage's files and whether they are still images (else one video file); each
+    name UTF-8 text (OpenCV cannot open another)."""
+    files, images = _footage_files(footage)
+    odd = next((p for p in files if not is_utf8(p)), None)
+    if odd is not None:
+        raise FootageError(f"{odd}: {NOT_UTF8}")
+    return files, images
+
+
+def _footage_files(footage: str | Path | Sequence[str | Path]) -> tuple[list[Path], bool]:
     if isinstance(footage, str | Path):
         path = Path(footage)
         if path.is_dir():
@@ -81,17 +92,18 @@ def iter_frames(files: list[Path], images: bool, max_frames: int) -> Iterator[np
     """Grey uint8 frames, at most ``max_frames``; FootageError for an unreadable file."""
     if images:
         for path in files[:max_frames]:
-            frame = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-            if frame is None:
-                raise FootageError(f"{path}: not a readable image")
-            if frame.dtype != np.uint8:
-                raise FootageError(f"{path}: {frame.dtype} pixels; lens measure reads 8-bit frames")
-            if frame.ndim == 3:
-                code = cv2.COLOR_BGRA2GRAY if frame.shape[2] == 4 else cv2.COLOR_BGR2GRAY
-                frame = cv2.cvtColor(frame, code)
-            yield frame
+            try:
+                yield read_grey(path, FRAME_PIXELS)
+            except StillImageError as exc:
+                raise FootageError(str(exc)) from None
         return
     count = 0
+    try:
+        check_video(files[0])
+    except VideoBoundsError as exc:  # over a bound, or a frame size that changes
+        raise FootageError(f"{files[0]}: {exc}") from None
+    except ValueError:
+        pass  # not a video: read_video below says so
     try:
         for frame in read_video(files[0]):
             yield frame

@@ -236,3 +236,38 @@ def profile_from_option(text: str) -> CameraProfile:
         return load_profile(text)
     except ProfileError as exc:
         raise StudyConfigError("camera", exc.option_detail) from None
+
+
+def nondefault_options(config: StudyConfig) -> list[str]:
+    """The command-line options in which ``config`` differs from the default study, as a reader
+    would type them (``--sizes 8.8,13.2``), for the figures' titles. The PSF scales and the
+    detector are named by the titles themselves; the alphas are default when they are the
+    default grid fitted to the camera (:func:`alphas_within`)."""
+    default = StudyConfig()
+
+    def nums(values: tuple[float, ...]) -> str:
+        return ",".join(f"{v:g}" for v in values)
+
+    differs = (
+        ("--camera", config.camera != default.camera, config.camera.name),
+        ("--sizes", config.sizes_mm != default.sizes_mm, nums(config.sizes_mm)),
+        (
+            "--alphas",
+            config.alphas_deg != alphas_within(DEFAULT_ALPHAS_DEG, config.camera),
+            nums(config.alphas_deg),
+        ),
+        ("--phis", config.phis_deg != default.phis_deg, nums(config.phis_deg)),
+        ("--images", config.images != default.images, str(config.images)),
+        ("--distance", config.distance_mm != default.distance_mm, f"{config.distance_mm:g}"),
+        ("--lighting", config.lightings != default.lightings, ",".join(config.lightings)),
+        ("--family", config.dictionary != default.dictionary, config.dictionary),
+        ("--seed", config.seed != default.seed, str(config.seed)),
+        ("--spp", config.spp != default.spp, str(config.spp)),
+        ("--exposure", config.exposure != default.exposure, f"{config.exposure:g}"),
+        (
+            "--cell-px",
+            config.detector.cell_px != default.detector.cell_px,
+            str(config.detector.cell_px),
+        ),
+    )
+    return [f"{flag} {value}" for flag, changed, value in differs if changed]

@@ -1,44 +1,32 @@
-"""The study figures' shared look: colours per marker size, number and tick labels, saving.
+"""The study figures' look: colours per marker size, number and tick labels, saving.
 
-Used by :mod:`bench.study.plots`; the rates' colour map stays with the heatmap that uses it.
+Used by :mod:`bench.study.plots`, on the project's one figure style (:mod:`bench.common.figures`:
+the Okabe-Ito palette, options in titles, tight saving); the rates' colour map stays with the
+heatmap that uses it.
 """
 
 from __future__ import annotations
 
-import pathlib
 from collections.abc import Sequence
 
-import matplotlib
+import numpy as np
+import pandas as pd
 
-matplotlib.use("Agg")
+from bench.common.figures import colour, save  # noqa: F401  (save: the study's plots' too)
+from bench.study.report import nominal_scale_of
 
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-import pandas as pd  # noqa: E402
-
-from bench.study.report import nominal_scale_of  # noqa: E402
-
-DPI = 120
 #: Line style per corner refinement: ``subpix`` (OpenCV's) and ``own`` (a peer's) are the
 #: detector's corners, ``lines`` the project's refined from them.
 REFINEMENT_STYLES = {"lines": "-", "subpix": "--", "own": "--"}
 
 
-def size_colors(sizes: Sequence[float]) -> dict[float, tuple[float, float, float, float]]:
-    """One distinguishable colour per marker size (stable across plots)."""
-    cmap = plt.get_cmap("tab10")
-    return {s: cmap(i % 10) for i, s in enumerate(sorted(sizes))}
+def size_colors(sizes: Sequence[float]) -> dict[float, str]:
+    """One colour per marker size that colour-blind readers tell apart (stable across plots)."""
+    return {s: colour(i) for i, s in enumerate(sorted(sizes))}
 
 
 def fmt_num(value: float) -> str:
     return f"{value:g}"
-
-
-def save(fig: plt.Figure, path: pathlib.Path) -> None:
-    path = pathlib.Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=DPI)
-    plt.close(fig)
 
 
 def at_nominal(table: pd.DataFrame, nominal_scale: float) -> tuple[pd.DataFrame, float, list]:

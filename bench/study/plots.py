@@ -7,6 +7,7 @@ look of :mod:`bench.study.plot_style`.
 from __future__ import annotations
 
 import pathlib
+from collections.abc import Sequence
 
 import matplotlib
 
@@ -20,6 +21,7 @@ from matplotlib.lines import Line2D  # noqa: E402
 from matplotlib.patches import Patch, Rectangle  # noqa: E402
 from matplotlib.ticker import FormatStrFormatter, FuncFormatter  # noqa: E402
 
+from bench.common.figures import BLUE, SKY_BLUE, VERMILLION, YELLOW, titled  # noqa: E402
 from bench.study.plot_style import (  # noqa: E402
     REFINEMENT_STYLES,
     at_nominal,
@@ -44,17 +46,18 @@ from bench.study.report import (  # noqa: E402
 )
 
 _NAN_Y = -5.0  # where "threshold never reached" is drawn in plot_max_phi
-# Red (0) to green (1), with most of the colour change spent near the 95 % threshold where
-# the study's decisions are made: 0.90 is pale yellow-green, 0.95 mid green, 1.0 dark green.
+# Vermillion (0) through yellow to blue (1): the blue-orange axis that colour-blind readers see
+# (a red-green map is the one they cannot), with most of the change spent near the 95 %
+# threshold where the study's decisions are made: 0.90 is sky blue, 0.95 blue, 1.0 dark blue.
 _RATE_CMAP = LinearSegmentedColormap.from_list(
-    "red_yellow_green",
+    "vermillion_yellow_blue",
     [
-        (0.0, "#b71c1c"),
-        (0.5, "#f57c00"),
-        (0.8, "#fdd835"),
-        (0.9, "#dce775"),
-        (0.95, "#66bb6a"),
-        (1.0, "#1b5e20"),
+        (0.0, VERMILLION),
+        (0.5, "#eec06b"),
+        (0.8, YELLOW),
+        (0.9, SKY_BLUE),
+        (0.95, BLUE),
+        (1.0, "#08306b"),
     ],
 )
 
@@ -65,6 +68,7 @@ def plot_max_phi(
     threshold: float = THRESHOLD,
     nominal_scale: float = 1.0,
     detector: str | None = None,
+    options: Sequence[str] = (),
 ) -> None:
     """Plot the figure of merit with its PSF band: max detectable tilt phi vs field angle alpha.
 
@@ -74,7 +78,8 @@ def plot_max_phi(
     overlapping filled bands of four sizes could not be told apart. One panel per lighting.
     "No phi reaches the threshold" is drawn at phi = -5 deg: an 'x' for the nominal scale, and
     a bar reaching down to it fails at some scale. ``threshold`` is only used for labels;
-    ``detector`` (what found the markers) goes into the title.
+    ``detector`` (what found the markers) and ``options`` (the run's non-default options, as
+    :func:`bench.study.config.nondefault_options` spells them) go into the title.
     """
     table = band(max_phi_table, nominal_scale)
     scales = np.sort(pd.unique(max_phi_table["psf_scale"].astype(float))).tolist()
@@ -168,17 +173,14 @@ def plot_max_phi(
         fontsize=8,
         frameon=False,
     )
-    fig.suptitle(
-        "Largest detectable marker tilt vs position in the field of view"
-        f"{detector_note(detector)}\n"
-        + (
-            f"line: PSF scale {fmt_num(nominal)}; band: PSF scale "
-            f"{fmt_num(scales[0])}\u2013{fmt_num(scales[-1])}"
-            if len(scales) > 1
-            else f"PSF scale {fmt_num(nominal)} (no band)"
-        ),
-        fontsize=11,
+    title = "Largest detectable marker tilt vs position in the field of view"
+    title += f"{detector_note(detector)}\n" + (
+        f"line: PSF scale {fmt_num(nominal)}; band: PSF scale "
+        f"{fmt_num(scales[0])}\u2013{fmt_num(scales[-1])}"
+        if len(scales) > 1
+        else f"PSF scale {fmt_num(nominal)} (no band)"
     )
+    fig.suptitle(titled(title, options), fontsize=11)
     save(fig, path)
 
 
@@ -188,6 +190,7 @@ def plot_heatmap(
     threshold: float = THRESHOLD,
     nominal_scale: float = 1.0,
     detector: str | None = None,
+    options: Sequence[str] = (),
 ) -> None:
     """Detection rate heatmaps at the nominal PSF scale: alpha (columns) x phi (rows).
 
@@ -197,7 +200,7 @@ def plot_heatmap(
     Colour runs from red (rate 0) to green (rate 1); each cell shows its rate, cells below
     ``threshold`` have bold text and a black outline, and a '?' marks a cell whose Wilson
     interval still holds the threshold (undecided at the image cap). Untested cells are grey.
-    ``detector`` (what found the markers) goes into the title.
+    ``detector`` (what found the markers) and ``options`` go into the title.
     """
     needed = [*CELL_KEYS, "detection_rate", "decided"]
     require_columns(summary, needed, "summary table", nonempty=True)
@@ -278,12 +281,12 @@ def plot_heatmap(
     cbar = fig.colorbar(image, ax=axes, shrink=0.9, aspect=30)
     cbar.set_label("detection rate (right id)")
     cbar.ax.axhline(threshold, color="black", lw=1.0)
-    fig.suptitle(
+    title = (
         f"Detection rate per cell, {scale_note(nominal, scales)}{detector_note(detector)}\n"
         f"bold, outlined: below {threshold * 100:g}%; ?: Wilson interval still holds "
-        f"{threshold * 100:g}%; -: not tested",
-        fontsize=10,
+        f"{threshold * 100:g}%; -: not tested"
     )
+    fig.suptitle(titled(title, options), fontsize=10)
     save(fig, path)
 
 
@@ -294,6 +297,7 @@ def plot_pose_error(
     nominal_scale: float = 1.0,
     detector: str | None = None,
     refinements: tuple[str, ...] = REFINEMENTS,
+    options: Sequence[str] = (),
 ) -> None:
     """Pose error vs alpha at the nominal PSF scale: median and p95, lines vs the detector's
     corners (``subpix`` for OpenCV, ``own`` for a peer: ``refinements``).
@@ -304,7 +308,7 @@ def plot_pose_error(
     with ``phi_deg=None`` it is the median over the tested phis of the per-cell statistic
     (cells without a detection are skipped); with a value only that phi is used. A row's y
     axis is logarithmic when its positive values span more than a factor 30. ``detector``
-    (what found the markers) goes into the title.
+    (what found the markers) and ``options`` go into the title.
     """
     p_stat = f"p{PERCENTILE}"
     columns = [
@@ -396,9 +400,9 @@ def plot_pose_error(
         if phi_deg is not None
         else "median over the tested phis of the per-cell statistics"
     )
-    fig.suptitle(
+    title = (
         f"Pose error of detected markers vs field angle ({how}), {scale_note(nominal, scales)}"
-        f"{detector_note(detector)}",
-        fontsize=11,
+        f"{detector_note(detector)}"
     )
+    fig.suptitle(titled(title, options), fontsize=11)
     save(fig, path)

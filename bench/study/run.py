@@ -24,7 +24,7 @@ from bench.common.units import DAMAGED, DONE
 from bench.study import plots as report_plots
 from bench.study import report
 from bench.study.cells import cell_state, init_study_worker, run_cell
-from bench.study.config import Cell, StudyConfig, StudyConfigError
+from bench.study.config import Cell, StudyConfig, StudyConfigError, nondefault_options
 from renderers.marker_renderer import MarkerRenderer
 from renderers.variant import init_worker
 
@@ -200,7 +200,7 @@ def run_study(
 
         # --- Plots
         t_plot = time.perf_counter()
-        detector = {"detector": config.detector_label}
+        detector = {"detector": config.detector_label, "options": nondefault_options(config)}
         for name, plot, table, options in (
             ("max_phi.png", report_plots.plot_max_phi, max_phi, detector),
             ("heatmap.png", report_plots.plot_heatmap, summary, detector),

@@ -174,7 +174,7 @@ class ArrayEvidence:
     def check(self, profile: CameraProfile, trial: float, observation: Observation) -> Verdict:
         """The observation (whose scene these renders are) checked at the trial profile."""
         from pipeline.detect import detect_markers
-        from renderers.frames import TwinRecorder
+        from renderers.twin_recorder import TwinRecorder
 
         o = observation
         seed = int(_trial_rng(o.id, trial).integers(1 << 31))

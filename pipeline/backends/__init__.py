@@ -14,6 +14,10 @@ Peers are an optional extra (``pip install -e .[peers]``): their adapters import
 only when called, and a missing one raises :class:`BackendUnavailableError` saying how to get it.
 Peers run in a worker process (:mod:`pipeline.backends.isolated`), so a crash in their native
 code costs the frame, not the run.
+
+A user's own detector is a backend too, named ``plugin:SPEC`` (:mod:`pipeline.backends.plugin`,
+``docs/plugins.md``): :func:`get_backend` builds its row when first asked, so every place that
+takes a backend name takes a plugin's.
 """
 
 from __future__ import annotations
@@ -43,13 +47,16 @@ class Found(NamedTuple):
 class PoseRequest(NamedTuple):
     """What a backend's own pose needs: pinhole intrinsics of the image it is given (the crop's
     principal point already shifted) and the marker's side (mm). Both peers model only pinhole
-    lenses, so their own poses ignore the fisheye: that is what they offer, reported as such."""
+    lenses, so their own poses ignore the fisheye: that is what they offer, reported as such.
+    ``whole_frame``: the image is the camera's whole frame, not a crop (a plugin's own pose is
+    only kept then: it knows nothing of crops)."""
 
     fx_px: float
     fy_px: float
     cx_px: float
     cy_px: float
     size_mm: float
+    whole_frame: bool = False
 
 
 class BackendUnavailableError(RuntimeError):
@@ -58,6 +65,12 @@ class BackendUnavailableError(RuntimeError):
 
 class BackendCrashError(RuntimeError):
     """A backend's worker process died or hung on an image; the message names the backend."""
+
+
+class BackendError(RuntimeError):
+    """A backend raised, or answered outside its contract (a plugin's wrong shape, NaN
+    corners); the message, one line, names the backend. Unlike a crash it is not one frame's
+    bad luck: the run of that backend stops."""
 
 
 @dataclass(frozen=True)
@@ -70,6 +83,9 @@ class Backend:
     library: str  # what it is, its licence and where it comes from
     own_pose: bool  # whether the library estimates poses itself
     isolated: bool  # run in a worker process (native code the project does not control)
+    #: Searched on the whole frame, not the image circle's box, where the search is "full"
+    #: (a plugin's own pose is in the frame's pixels).
+    whole_frame: bool = False
 
     def detect(
         self,
@@ -125,11 +141,29 @@ BACKENDS: dict[str, Backend] = {
 PEERS_INSTALL = "pip install -e '.[peers]'"
 
 
+#: How a plugin backend's name starts (:mod:`pipeline.backends.plugin`).
+PLUGIN_PREFIX = "plugin:"
+
+
 def get_backend(name: str) -> Backend:
-    """The registry row, or ValueError naming the choices."""
-    if name not in BACKENDS:
-        raise ValueError(f"detector={name!r}: choose from {', '.join(BACKENDS)}")
-    return BACKENDS[name]
+    """The registry row, a plugin's (``plugin:SPEC``, resolved on first use: ValueError in one
+    line if it cannot be), or ValueError naming the choices."""
+    if name in BACKENDS:
+        return BACKENDS[name]
+    if isinstance(name, str) and name.startswith(PLUGIN_PREFIX):
+        from pipeline.backends.plugin import plugin_backend
+
+        return plugin_backend(name)
+    raise ValueError(
+        f"detector={name!r}: choose from {', '.join(BACKENDS)}, or plugin:SPEC (docs/plugins.md)"
+    )
+
+
+def backend_name(text: str) -> str:
+    """A ``--detector`` value as a backend name: a built-in's name, or a plugin's SPEC (or
+    ``plugin:SPEC``) as ``plugin:SPEC``."""
+    text = text.strip()
+    return text if text in BACKENDS or text.startswith(PLUGIN_PREFIX) else PLUGIN_PREFIX + text
 
 
 def check_family(backend: str, family: str) -> None:

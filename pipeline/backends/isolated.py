@@ -6,8 +6,12 @@ CAMERA_NOTES.md) and take the whole process down; a hung one never returns. A ba
 started on first use and kept): the image goes over a socket, the :class:`Found` comes back. If
 the child dies or does not answer within :data:`TIMEOUT_S`, :func:`run_backend` raises
 :class:`BackendCrashError` naming the backend and the image's fate, and the next image starts a
-fresh child. The child is a plain ``python -m`` process (not ``multiprocessing``, which refuses
-children of daemonic processes such as Dask's workers) and dies with its parent.
+fresh child. A plugin (:mod:`pipeline.backends.plugin`) has its own limit
+(:func:`pipeline.backends.plugin.timeout_s`) and a run of :data:`MAX_STRAIGHT_CRASHES` crashes
+or hangs in a row stops it (:class:`BackendError`): a plugin that hangs on every image would
+otherwise cost its limit on every frame. The child is a plain ``python -m`` process (not
+``multiprocessing``, which refuses children of daemonic processes such as Dask's workers) and
+dies with its parent.
 
 The cost, measured by ``whiskerbench bench pipeline`` (peers' frames/s include it): one copy
 of the image through the socket per call.
@@ -25,7 +29,16 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.backends import Backend, BackendCrashError, Found, PoseRequest, get_backend, require
+from pipeline.backends import (
+    PLUGIN_PREFIX,
+    Backend,
+    BackendCrashError,
+    BackendError,
+    Found,
+    PoseRequest,
+    get_backend,
+    require,
+)
 
 #: Longest a backend may take on one image before it counts as hung (s).
 TIMEOUT_S = 120.0
@@ -35,6 +48,19 @@ TIMEOUT_S = 120.0
 #: full frame, alternating 8 rounds). Other C libraries ignore them.
 ALLOCATOR_ENV = {"MALLOC_MMAP_THRESHOLD_": str(1 << 30), "MALLOC_TRIM_THRESHOLD_": str(1 << 30)}
 _ROOT = Path(__file__).resolve().parents[2]  # the project, for the child's imports
+#: Crashes or hangs in a row after which a plugin is stopped.
+MAX_STRAIGHT_CRASHES = 3
+#: How long a plugin's fresh worker may take to start and import the plugin (a model's
+#: weights, say) before its first image: that is not the plugin hanging on an image.
+STARTUP_S = 120.0
+
+
+def _timeout_s(backend: Backend) -> float:
+    if backend.name.startswith(PLUGIN_PREFIX):
+        from pipeline.backends.plugin import timeout_s
+
+        return timeout_s()
+    return TIMEOUT_S
 
 
 class _Worker:
@@ -43,9 +69,14 @@ class _Worker:
     def __init__(self, backend: Backend) -> None:
         self.backend = backend
         self.owner = os.getpid()  # a forked copy of this object must not use the socket
+        self.started = not backend.name.startswith(PLUGIN_PREFIX)  # a plugin: after a check
         parent, child = socket.socketpair()
         path = os.pathsep.join(filter(None, [str(_ROOT), os.environ.get("PYTHONPATH")]))
         env = dict(os.environ, PYTHONPATH=path, **ALLOCATOR_ENV)
+        if not self.started:  # a plugin: on one core, as the pipelines are timed
+            from pipeline.backends.plugin import ONE_THREAD_ENV
+
+            env.update(ONE_THREAD_ENV)
         self.process = subprocess.Popen(
             [sys.executable, "-m", "pipeline.backends.isolated", str(child.fileno()),
              str(os.getpid())],
@@ -55,13 +86,26 @@ class _Worker:
         self.conn = Connection(parent.detach())
 
     def call(self, image: np.ndarray, config, side: int, pose: PoseRequest | None) -> Found:
+        limit = _timeout_s(self.backend)
         try:
+            if not self.started:  # imports the plugin, within STARTUP_S, not the image's limit
+                self.conn.send(self.backend.name)
+                if not self.conn.poll(STARTUP_S):
+                    self.close()
+                    raise BackendCrashError(
+                        f"detector {self.backend.name} did not start within {STARTUP_S:g} s; "
+                        "its worker was stopped"
+                    )
+                status, value = self.conn.recv()
+                if status != "ok":  # the plugin does not resolve in the worker
+                    raise BackendError(f"detector {self.backend.name}: in its worker: {value}")
+                self.started = True
             self.conn.send((self.backend, config, side, pose, image.shape))
             self.conn.send_bytes(memoryview(image).cast("B"))
-            if not self.conn.poll(TIMEOUT_S):
+            if not self.conn.poll(limit):
                 self.close()
                 raise BackendCrashError(
-                    f"detector {self.backend.name} did not answer within {TIMEOUT_S:g} s on a "
+                    f"detector {self.backend.name} did not answer within {limit:g} s on a "
                     f"{image.shape[1]}x{image.shape[0]} image; its worker was stopped"
                 )
             status, value = self.conn.recv()
@@ -74,7 +118,9 @@ class _Worker:
                 f"{image.shape[1]}x{image.shape[0]} image; a fresh worker takes the next"
             ) from None
         if status == "error":
-            raise RuntimeError(f"detector {self.backend.name}: {value}")
+            raise BackendError(f"detector {self.backend.name}: {value}")
+        if status == "failed":  # its own words name it
+            raise BackendError(value)
         return value
 
     def close(self) -> None:
@@ -89,6 +135,7 @@ class _Worker:
 
 
 _workers: dict[str, _Worker] = {}
+_straight_crashes: dict[str, int] = {}  # backend -> crashes and hangs in a row
 
 
 def run_backend(
@@ -104,10 +151,19 @@ def run_backend(
     if worker is None or worker.owner != os.getpid() or worker.process.poll() is not None:
         worker = _workers[backend.name] = _Worker(backend)
     try:
-        return worker.call(image, config, frame_side_px, pose)
-    except BackendCrashError:
+        found = worker.call(image, config, frame_side_px, pose)
+    except BackendCrashError as exc:
         del _workers[backend.name]
+        crashes = _straight_crashes[backend.name] = _straight_crashes.get(backend.name, 0) + 1
+        if backend.name.startswith(PLUGIN_PREFIX) and crashes >= MAX_STRAIGHT_CRASHES:
+            _straight_crashes[backend.name] = 0
+            raise BackendError(
+                f"detector {backend.name} crashed or hung on {crashes} images in a row, "
+                f"stopped; the last: {exc}"
+            ) from None
         raise
+    _straight_crashes[backend.name] = 0
+    return found
 
 
 @atexit.register
@@ -119,18 +175,32 @@ def stop_workers() -> None:
 
 
 def _serve(conn: Connection) -> None:
-    """The child's loop: an image in, its Found (or the Python error) out, until EOF."""
+    """The child's loop: an image in, its Found (or the Python error) out, until EOF; a
+    backend's name alone: load it (a plugin's import) and say whether it loaded."""
     while True:
         try:
-            backend, config, side, pose, shape = conn.recv()
+            message = conn.recv()
+            if isinstance(message, str):  # a plugin's start
+                try:
+                    from pipeline.backends.plugin import one_thread
+
+                    one_thread()
+                    get_backend(message)
+                    conn.send(("ok", None))
+                except ValueError as exc:
+                    conn.send(("failed", " ".join(str(exc).split())))
+                continue
+            backend, config, side, pose, shape = message
             buffer = conn.recv_bytes()
         except EOFError:
             return
         image = np.frombuffer(buffer, np.uint8).reshape(shape)
         try:
             result = ("ok", backend.detect(image, config, side, pose))
+        except BackendError as exc:  # a plugin's failure, in its own words
+            result = ("failed", " ".join(str(exc).split()))
         except Exception as exc:  # noqa: BLE001 - reported to the parent, which raises it
-            result = ("error", f"{type(exc).__name__}: {exc}")
+            result = ("error", " ".join(f"{type(exc).__name__}: {exc}".split()))
         conn.send(result)
 
 
