@@ -161,8 +161,8 @@ def run_compare(
     for pipeline in pipelines:
         claim(dataset / "scores" / pipeline.folder_name, "score")
     verified = verify_dataset(dataset)  # every file hashed once, before the speed frames
+    prepared = prepare(pipelines, verified)  # results files read, branch finders resolved
     with open_folder(out_dir, "compare", ("", "grids")):  # locked until the manifest is written
-        prepared = prepare(pipelines, verified)  # results files read, branch finders resolved
         chosen = init_worker(variant)
         t_start = time.perf_counter()
         runs = dataset_runs(dataset, speed_frames) if detecting else []
