@@ -208,27 +208,7 @@ def test_caps_bound_the_read(fake, truth, tmp_path, capsys, monkeypatch) -> None
 
 
 #: Another tool: plain OpenCV on the loader's frames, its default parameters, no project code.
-PLAIN_OPENCV = """
-import sys, time
-import cv2, pandas as pd
-from whiskerbench import open_dataset
-
-corner_names = sys.argv[3].split(",")  # the format's c0_x .. c3_y column names, in order
-
-detector = cv2.aruco.ArucoDetector(cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_50))
-rows = []
-for sample in open_dataset(sys.argv[1]):
-    for frame in sample.frames():
-        start = time.perf_counter()
-        corners, ids, _ = detector.detectMarkers(frame.image)
-        spent = time.perf_counter() - start
-        for marker_id, quad in zip([] if ids is None else ids.ravel(), corners):
-            row = {"sample_id": sample.id, "frame": frame.index, "marker_id": int(marker_id)}
-            for k, (x, y) in enumerate(quad.reshape(4, 2)):
-                row[corner_names[2 * k]], row[corner_names[2 * k + 1]] = float(x), float(y)
-            rows.append({**row, "frame_time_s": spent})
-pd.DataFrame(rows).to_csv(sys.argv[2], index=False)
-"""
+PLAIN_OPENCV = Path(__file__).resolve().parents[1] / "examples" / "results_file" / "plain_opencv.py"
 
 
 @pytest.mark.slow
@@ -240,9 +220,8 @@ def test_plain_opencv_results_score_as_the_equivalent_built_in_pipeline(
     import subprocess
     import sys
 
-    script, results = tmp_path / "plain_opencv.py", tmp_path / "plain.csv"
-    script.write_text(PLAIN_OPENCV)
-    argv = [sys.executable, str(script), str(rendered_pair), str(results), ",".join(CORNERS)]
+    results = tmp_path / "plain.csv"
+    argv = [sys.executable, str(PLAIN_OPENCV), str(rendered_pair), str(results)]
     subprocess.run(argv, check=True)
     built_in, theirs = tmp_path / "naive", tmp_path / "theirs"
     assert main(["score", str(rendered_pair), "--pipeline", "naive", "--out", str(built_in)]) == 0
