@@ -139,6 +139,38 @@ def test_comparison_figures_name_the_dataset_and_options(saved, tmp_path):
     assert first.get_color() == ninth.get_color() and first.get_marker() != ninth.get_marker()
 
 
+def test_point_names_cover_no_other_name_and_coinciding_points_share_one(saved, tmp_path):
+    """The comparison's crowd: four pipelines at one accuracy within a few frames/s, two on the
+    very same spot (a preset and its alias), one at the left edge with a long name."""
+    from bench.evaluate.pareto import plot_pareto
+
+    summary = pd.DataFrame(
+        {
+            "pipeline": ["robust/detector=locus", "hybrid", "paper", "naive", "fast", "locus"],
+            "fps": [7.37, 8.85, 23.7, 23.7, 95.3, 22.5],
+            "correct_rate": [0.667, 0.792, 0.75, 0.75, 0.708, 0.75],
+            "recall": [0.998, 0.998, 0.989, 0.989, 0.979, 0.998],
+            "deflection_err_mm": [0.0088, 0.0088, 0.022, 0.1, 0.048, 0.013],
+        }
+    )
+    plot_pareto(summary, tmp_path / "pareto.png")
+    (fig,) = saved
+    renderer = fig.saved_renderer
+    for ax in fig.axes:
+        texts = [t for t in ax.texts if t.get_text()]
+        boxes = [t.get_window_extent(renderer) for t in texts]
+        for i, a in enumerate(boxes):
+            assert not any(a.overlaps(b) for b in boxes[i + 1 :]), texts[i].get_text()
+        named = sorted(n.strip() for t in texts for n in t.get_text().split(","))
+        assert named == sorted(summary["pipeline"])  # every one named, once
+    recall_names = [t.get_text() for t in fig.axes[1].texts]
+    assert "paper, naive" in recall_names  # the same spot: one name for both
+    frame = fig.axes[1].get_window_extent(renderer)
+    for t in fig.axes[1].texts:  # room enough: every name inside the panel
+        box = t.get_window_extent(renderer)
+        assert frame.x0 <= box.x0 and box.x1 <= frame.x1, t.get_text()
+
+
 def test_results_grid_and_branch_plot_use_the_palette(saved, tmp_path):
     from bench.evaluate.detect import plot_estimate
     from bench.evaluate.grid_plot import plot_grid

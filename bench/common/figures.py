@@ -4,7 +4,8 @@
   with any common colour-vision deficiency can tell apart (matplotlib's ``tab10`` pairs red and
   green); past eight series a marker shape tells the wrapped colours apart.
 - A run's non-default options in the title (:func:`titled`), as the command line spells them.
-- Legends outside the data (:func:`legend_outside`), and saving with a tight bounding box so that
+- Legends outside the data (:func:`legend_outside`), point names that never cover one another
+  (:func:`label_points`), and saving with a tight bounding box so that
   no title or legend is clipped (:func:`save`); the title goes into the PNG's metadata too, so a
   test (or a reader's file browser) can read it from the file.
 """
@@ -69,6 +70,65 @@ def legend_outside(fig: plt.Figure, handles: list, labels: list | None = None, *
         fig.legend(handles=handles, **kwargs)
     else:
         fig.legend(handles, labels, **kwargs)
+
+
+#: Where a point's name may go, in points from the point (x, y, horizontal alignment): beside it
+#: first, then above and below, then further out; the first spot that covers no other name or
+#: point is taken.
+LABEL_SPOTS = tuple(
+    (dx, dy, ha)
+    for dy in (3, -11, 12, -20, 21, -29, 30, -38)
+    for dx, ha in ((4, "left"), (-4, "right"))
+)
+#: Points closer than this on screen (px) are one place: one name lists them all.
+SAME_PLACE_PX = 4.0
+
+
+def label_points(ax: plt.Axes, xs: Sequence[float], ys: Sequence[float], names: Sequence[str],
+                 fontsize: float = 7) -> None:  # fmt: skip
+    """Name each point beside it, no name over another name or a point: points that coincide
+    on screen share one name ("a, b"); a name that would cover one already placed, another
+    point or the axes' edge takes the first free spot of :data:`LABEL_SPOTS` (the first spot
+    if none is free).
+    The figure is drawn once first, so that its layout has settled the axes' scales."""
+    import numpy as np
+    from matplotlib.transforms import Bbox
+
+    fig = ax.figure
+    fig.canvas.draw()
+    renderer = fig.canvas.get_renderer()
+    data = np.column_stack([np.asarray(xs, float), np.asarray(ys, float)])
+    screen = ax.transData.transform(data) if len(data) else np.empty((0, 2))
+    places: list[tuple[int, list[str]]] = []  # (index of the first point, names there)
+    for i, name in enumerate(names):
+        near = [p for p in places if np.hypot(*(screen[p[0]] - screen[i])) < SAME_PLACE_PX]
+        if near:
+            near[0][1].append(str(name))
+        else:
+            places.append((i, [str(name)]))
+    dots = [Bbox.from_extents(x - 4, y - 4, x + 4, y + 4) for x, y in screen]
+    frame = ax.get_window_extent(renderer)  # a name stays inside the axes where it can
+    taken: list = []
+    for i, group in sorted(places, key=lambda p: -screen[p[0], 1]):  # top down
+        others = [
+            d for j, d in enumerate(dots) if np.hypot(*(screen[j] - screen[i])) >= SAME_PLACE_PX
+        ]
+        first = None
+        for dx, dy, ha in LABEL_SPOTS:
+            text = ax.annotate(", ".join(group), tuple(data[i]), fontsize=fontsize, ha=ha,
+                               xytext=(dx, dy), textcoords="offset points")  # fmt: skip
+            box = text.get_window_extent(renderer)
+            inside = frame.x0 <= box.x0 and box.x1 <= frame.x1 and box.y1 <= frame.y1
+            if inside and not any(box.overlaps(b) for b in taken + others):
+                break
+            text.remove()
+            first = first or (dx, dy, ha)
+        else:  # nowhere free: the first spot
+            dx, dy, ha = first
+            text = ax.annotate(", ".join(group), tuple(data[i]), fontsize=fontsize, ha=ha,
+                               xytext=(dx, dy), textcoords="offset points")  # fmt: skip
+            box = text.get_window_extent(renderer)
+        taken.append(box)
 
 
 def figure_title(fig: plt.Figure) -> str:

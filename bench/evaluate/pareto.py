@@ -20,7 +20,7 @@ import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 from matplotlib.ticker import NullFormatter  # noqa: E402
 
-from bench.common.figures import BLUE, GREY, VERMILLION, save, titled  # noqa: E402
+from bench.common.figures import BLUE, GREY, VERMILLION, label_points, save, titled  # noqa: E402
 from bench.evaluate.leaders import is_peer  # noqa: E402
 
 #: Accuracy measures on the dataset: column, label, whether higher is better.
@@ -61,6 +61,7 @@ def plot_pareto(
         1, len(ACCURACY), figsize=(5 * len(ACCURACY), 4.2), layout="constrained", squeeze=False
     )
     axes = axes[0]
+    named = []  # each panel's placed points, named once the layout is complete
     speed = summary["fps"].to_numpy()
     peer = summary["pipeline"].map(is_peer).to_numpy(bool)
     for ax, (column, label, higher) in zip(axes, ACCURACY, strict=True):
@@ -82,8 +83,7 @@ def plot_pareto(
         order = np.argsort(speed[front])
         ax.plot(speed[front][order], acc[front][order], "-", c=VERMILLION, lw=1)
         names = summary["pipeline"].to_numpy()
-        for x, y, name in zip(speed[placed], acc[placed], names[placed], strict=True):
-            ax.annotate(name, (x, y), fontsize=7, xytext=(4, 3), textcoords="offset points")
+        named.append((ax, speed[placed], acc[placed], names[placed]))
         for y, name in zip(acc[untimed], names[untimed], strict=True):
             ax.axhline(y, ls=":", c=BLUE, lw=1.2)
             ax.annotate(f"{name} (accuracy only)", (0.01, y), xycoords=("axes fraction", "data"),
@@ -104,4 +104,6 @@ def plot_pareto(
     on = f" on {dataset}" if dataset else ""
     title = f"Accuracy against speed{on} (hollow diamonds: peer detectors)"
     fig.suptitle(titled(title, options), fontsize=10)
+    for ax, xs, ys, names in named:
+        label_points(ax, xs, ys, names)
     save(fig, path)
