@@ -47,6 +47,7 @@ from bench.cli.ladder import add_ladder_parser
 from bench.cli.lens import add_lens_parser
 from bench.cli.loader import add_bench_loader_parser
 from bench.cli.render import add_bench_render_parser
+from bench.cli.replot import add_replot_parser
 from bench.cli.scale import add_scale_options, cmd_bench_scale
 from bench.common.manifest import input_digests, whiskerbench_version
 from bench.common.run_folder import set_command_line
@@ -390,6 +391,7 @@ def _parser() -> argparse.ArgumentParser:
     add_lens_parser(sub, _Parser)
     add_images_parser(sub)
     add_ladder_parser(sub)
+    add_replot_parser(sub)
     return parser
 
 
