@@ -50,6 +50,7 @@ from __future__ import annotations
 
 import functools
 import math
+import numbers
 from dataclasses import asdict, dataclass, field, fields
 from typing import Any
 
@@ -81,7 +82,8 @@ class FisheyeCamera:
     def __post_init__(self) -> None:
         for name in ("width_px", "height_px"):
             value = getattr(self, name)
-            if isinstance(value, bool) or int(value) != value or value < 1:
+            number = isinstance(value, numbers.Real) and not isinstance(value, bool)
+            if not (number and math.isfinite(value)) or int(value) != value or value < 1:
                 raise ValueError(f"{name}={value!r}: must be a positive integer")
         for name in ("fx_px", "fy_px"):
             if not (math.isfinite(getattr(self, name)) and getattr(self, name) > 0):
@@ -286,6 +288,7 @@ class FisheyeCamera:
         model = data.get("model")
         if not isinstance(model, dict):
             raise ValueError("camera file: missing the 'model' object")
+        _check_opencv_form(data.get("opencv_fisheye", {}))
         missing = [
             f
             for f in ("width_px", "height_px", "fx_px", "fy_px", "cx_px", "cy_px")
@@ -315,6 +318,27 @@ class FisheyeCamera:
                     raise ValueError(f"camera file: {name}={values[name]!r}: must be a list")
                 values[name] = tuple(values[name])
         return cls(**values)
+
+
+def _check_opencv_form(block: Any) -> None:
+    """The ``opencv_fisheye`` block :meth:`FisheyeCamera.to_dict` derives from the model: not
+    read back (the model is the camera), but a damaged one is refused, not passed over."""
+    if not isinstance(block, dict):
+        raise ValueError("camera file: 'opencv_fisheye' must be an object")
+    shapes = {"K": (3, 3), "D": (4,), "size": (2,), "fit_max_err_px": ()}
+    unknown = sorted(set(block) - set(shapes))
+    if unknown:
+        raise ValueError(f"camera file: unknown 'opencv_fisheye' field(s) {', '.join(unknown)}")
+    for name, value in block.items():
+        try:
+            array = np.asarray(value, dtype=float)
+        except (TypeError, ValueError):
+            array = None
+        if array is None or array.shape != shapes[name] or not np.isfinite(array).all():
+            raise ValueError(
+                f"camera file: opencv_fisheye.{name}={value!r}: must be finite numbers of "
+                f"shape {shapes[name]} (the form derived from 'model')"
+            )
 
 
 @functools.lru_cache(maxsize=64)

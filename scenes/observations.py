@@ -156,6 +156,13 @@ def _text(where: str, value: Any) -> str:
     return value
 
 
+def _description(value: Any) -> str:
+    """Free text, optional (empty when absent), but text: not a number passed off as one."""
+    if not isinstance(value, str):
+        raise ObservationError("description", f"{value!r}: must be a string")
+    return value
+
+
 def _number(where: str, value: Any, lo: float, hi: float, lo_open: bool = False) -> float:
     ok = isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
     ok = ok and (value > lo if lo_open else value >= lo) and value <= hi
@@ -305,7 +312,7 @@ def parse_observations(data: Any) -> Observations:
     if len(set(ids)) != len(ids):
         raise ObservationError("observations", f"ids must be distinct: {ids}")
     return Observations(
-        _text("sensor", data.get("sensor")), str(data.get("description", "")), parsed
+        _text("sensor", data.get("sensor")), _description(data.get("description", "")), parsed
     )
 
 

@@ -380,6 +380,8 @@ class CameraProfile:
         if not isinstance(name, str) or not name:
             raise ProfileError("name", f"{name!r}: must be a non-empty string")
         description = data.get("description", "")
+        if not isinstance(description, str):
+            raise ProfileError("description", f"{description!r}: must be a string")
         sources = data.get("sources", {})
         if not isinstance(sources, dict) or not all(
             isinstance(k, str) and isinstance(v, str) for k, v in sources.items()
