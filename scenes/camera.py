@@ -364,8 +364,9 @@ def _opencv_form(camera: FisheyeCamera) -> dict[str, Any]:
 
 def _opencv_error_px(camera: FisheyeCamera, K: np.ndarray, D: np.ndarray) -> float:
     """Largest pixel distance between cv2.fisheye's projection (K, D) and the exact camera,
-    over the field below min(theta_max, 89 deg) and every 10 degrees of azimuth."""
-    top = min(camera.theta_max_rad, math.radians(OPENCV_FIT_MAX_DEG))
+    over the field below min(theta_max, 89 deg) and every 10 degrees of azimuth (just inside
+    theta_max: a ray on it, rounded outward, has no projection and made the error NaN)."""
+    top = min(camera.theta_max_rad * (1.0 - 1e-9), math.radians(OPENCV_FIT_MAX_DEG))
     theta, phi = np.meshgrid(np.linspace(0.0, top, 90), np.radians(np.arange(0.0, 360.0, 10.0)))
     rays = np.stack(
         [np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)], axis=-1
