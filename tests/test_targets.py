@@ -154,6 +154,7 @@ def test_writes_csv_and_manifest_and_refuses_another_commands_folder(fake_rates,
     assert [r["target"] for r in rows] == [o.target.key for o in outcomes]
     manifest = json.loads((out / "manifest.json").read_text())
     assert manifest["kind"] == "bench-targets" and "targets.csv" in manifest["outputs"]
+    assert len(manifest["load_average"]) == 2  # what the figures were measured under
     other = tmp_path / "other"
     other.mkdir()
     (other / "manifest.json").write_text(json.dumps({"kind": "bench-scale"}))

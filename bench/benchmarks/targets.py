@@ -327,13 +327,19 @@ def bench_targets(
     out_dir = Path(out_dir)
     clock = RunClock()
     claim_out(out_dir, "bench-targets")
-    print(f"targets of issue 25 on {os.cpu_count()} cores" + (" (--quick)" if quick else ""))
+    load = [os.getloadavg()[0]]  # a shared machine's load: what the figures were measured under
+    print(
+        f"targets of issue 25 on {os.cpu_count()} cores, load average {load[0]:.1f}"
+        + (" (--quick)" if quick else "")
+    )
     outcomes = measure(quick_dataset, indoor, quick, time_tests)
+    load.append(os.getloadavg()[0])
     print(table(outcomes))
     met = [o for o in outcomes if o.met is not None]
     print(
         f"{sum(bool(o.met) for o in met)} of {len(met)} measured targets met; "
-        f"{len(outcomes) - len(met)} not measured (the reason in its row)"
+        f"{len(outcomes) - len(met)} not measured (the reason in its row); load average "
+        f"{load[1]:.1f} at the end"
     )
     try:
         lock = open_folder(out_dir, "bench-targets")
@@ -343,7 +349,9 @@ def bench_targets(
         path = out_dir / "targets.csv"
         write_bytes(path, csv_text(outcomes).encode())
         config = {"quick": quick, "time_tests": time_tests, "dataset": quick_dataset.to_json()}
-        record = build_manifest("bench-targets", clock, config, outputs=hash_files([path], out_dir))
+        record = build_manifest(
+            "bench-targets", clock, config, outputs=hash_files([path], out_dir), load_average=load
+        )
         write_manifest(out_dir, record)
     print(f"wrote {out_dir}/targets.csv and manifest.json")
     return outcomes
