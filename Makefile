@@ -48,12 +48,16 @@ test: setup
 test-fast: setup
 	$(BIN)/pytest -q -m "not slow" $(TEST_PARALLEL)
 
+# Ends with issue 25's targets, each figure against its threshold (runs/bench-targets/targets.csv);
+# they include `bench render` of both scenes (--scene array and the marker, 4 spp) against Cycles.
+# TARGETS_OPTIONS= leaves out timing make test and make test-fast (minutes).
+TARGETS_OPTIONS ?= --time-tests
+
 bench: setup
 	$(BIN)/whiskerbench bench detectability
 	$(BIN)/whiskerbench bench detectability --psf-scale $(BAND) --full-frame-cells 1
-	$(BIN)/whiskerbench bench render
-	$(BIN)/whiskerbench bench render --scene array --spp 4
 	$(BIN)/whiskerbench bench scale
+	$(BIN)/whiskerbench bench targets $(TARGETS_OPTIONS)
 
 # On a machine with an NVIDIA GPU: tests/test_gpu.py, then each benchmark on cuda_ad_rgb with its
 # llvm_ad_rgb baseline in the same run; time-boxed (BUDGET s). Figures: results/gpu/figures.md.

@@ -192,6 +192,10 @@ CASES: list[tuple[str, str]] = [
     ("bench scale --workers-max=two", r"--workers-max.*invalid int"),
     ("bench scale --variant=nosuch", r"--variant.*invalid choice"),
     ("bench scale --out={fx}/afile", r"--out:.*is a file"),
+    # --- bench targets
+    ("bench targets --out={fx}/afile", r"--out:.*is a file"),
+    ("bench targets --out=", r"--out: must name a folder"),
+    ("bench targets --quick=yes", r"--quick.*ignored explicit argument"),
     # --- dataset
     ("dataset --foliage=", r"--foliage.*at least one"),
     ("dataset --foliage=soft,soft", r"--foliage.*twice"),
@@ -399,7 +403,8 @@ def test_enough_cases():
     assert len(CASES) >= 80
     for command in ("detectability", "dataset", "detect", "score", "compare", "camera show",
                     "camera project", "camera import", "lens measure", "bench detectability",
-                    "bench dataset", "bench pipeline", "bench render", "bench loader"):  # fmt: skip
+                    "bench dataset", "bench pipeline", "bench render", "bench loader",
+                    "bench targets"):  # fmt: skip
         assert any(c.startswith(command) for c in commands), command
 
 

@@ -49,6 +49,7 @@ from bench.cli.loader import add_bench_loader_parser
 from bench.cli.render import add_bench_render_parser
 from bench.cli.replot import add_replot_parser
 from bench.cli.scale import add_scale_options, cmd_bench_scale
+from bench.cli.targets import add_bench_targets_parser
 from bench.common.manifest import input_digests, whiskerbench_version
 from bench.common.run_folder import set_command_line
 from bench.study.config import (
@@ -387,6 +388,7 @@ def _parser() -> argparse.ArgumentParser:
     bscale.set_defaults(func=_cmd_bench_scale)
     add_bench_render_parser(bench_sub)
     add_bench_loader_parser(bench_sub)
+    add_bench_targets_parser(bench_sub)
     add_camera_parser(sub, _Parser)
     add_lens_parser(sub, _Parser)
     add_images_parser(sub)

@@ -1,0 +1,179 @@
+"""``bench targets``: "met" is the figure against the threshold, an unmeasured target says why,
+and the table and ``targets.csv`` have a row per target. Fake figures stand in for the dataset
+runs and the renders in the fast tests; one slow test runs the real thing small."""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import shutil
+
+import pytest
+
+from bench.benchmarks import targets as t
+from bench.benchmarks.scale import default_dataset_frames
+from bench.dataset.config import DatasetConfig
+from scenes.validation import FieldError
+
+QUICK = DatasetConfig(foliage=("soft",), distances=("intermediate",), branches=((),))
+INDOOR = DatasetConfig(foliage=("soft",), distances=("far",), branches=((),), protocols=("indoor",))
+HEADER = "| target | figure | threshold | met | baseline / ratio | command |"
+
+
+@pytest.fixture
+def fake_rates(monkeypatch):
+    """dataset_rate answers from a table {workers: frames/s} (and records its calls)."""
+    rates = {1: 10.0, 2: 20.0}
+    calls = []
+
+    def fake(config, workers, variant):
+        calls.append((config, workers, variant))
+        rate = rates["gpu" if variant == "cuda_ad_rgb" else workers]
+        return {"frames_per_s": rate, "frames_rendered": 30, "wall_s": 30 / rate,
+                "variant": variant or "llvm_ad_rgb"}  # fmt: skip
+
+    monkeypatch.setattr(t, "dataset_rate", fake)
+    monkeypatch.setattr(t, "gpu_present", lambda: False)
+    return rates, calls
+
+
+@pytest.mark.parametrize(
+    ("figure", "threshold", "above", "met"),
+    [(15.0, 15.0, True, True), (14.9, 15.0, True, False), (1.49, 1.5, False, True),
+     (1.5, 1.5, False, False), (240.0, 240.0, False, False), (31.0, 30.0, False, False)],
+)  # fmt: skip
+def test_met_is_the_figure_against_the_threshold(figure, threshold, above, met):
+    assert t.judge(figure, threshold, above) is met
+    target = t.Target("x", "x", "s", threshold, above, "cmd")
+    assert t.Outcome(target, figure).met is met
+    assert t.Outcome(target, None, why="not measured: because").met is None
+
+
+def test_every_issue_target_once_with_a_command():
+    keys = [x.key for x in t.TARGETS]
+    assert keys == ["1a", "1b", "1c", "2a", "2b", "3", "4a", "4b"]
+    assert all(x.command for x in t.TARGETS) and len(set(keys)) == len(keys)
+
+
+@pytest.mark.parametrize("rates", [{1: 10.0, 2: 20.0}, {1: 5.0, 2: 7.0}])
+def test_fake_figures_decide_met_and_unmeasured_rows_say_why(fake_rates, rates, monkeypatch):
+    fake_rates[0].update(rates)
+    import bench.benchmarks.cycles_scene as cycles
+
+    monkeypatch.setattr(cycles, "import_bpy", lambda: None)
+    outcomes = t.measure(QUICK, INDOOR)
+    by_key = {o.target.key: o for o in outcomes}
+    assert [o.target.key for o in outcomes] == [x.key for x in t.TARGETS]
+    assert by_key["1a"].figure == rates[2] and by_key["1b"].figure == rates[1]
+    assert by_key["1a"].met is (rates[2] >= 15) and by_key["1b"].met is (rates[1] >= 8)
+    assert f"{rates[2] / rates[1]:.2f}x the 1-worker rate" in by_key["1a"].baseline
+    hours = default_dataset_frames(INDOOR) / rates[2] / 3600
+    assert by_key["1c"].figure == pytest.approx(hours) and by_key["1c"].met is (hours < 1.5)
+    assert "estimate" in by_key["1c"].baseline
+    for key in ("2a", "2b"):
+        assert by_key[key].figure is None and "bpy not installed" in by_key[key].why
+    assert by_key["3"].figure is None and "no device on this machine" in by_key["3"].why
+    assert "results/gpu" in by_key["3"].why
+    for key in ("4a", "4b"):
+        assert by_key[key].figure is None and "--time-tests" in by_key[key].why
+    text = t.table(outcomes)
+    lines = text.splitlines()
+    assert lines[0] == HEADER and len(lines) == 2 + len(t.TARGETS)
+    assert all(line.count(" | ") == 5 for line in lines[2:])
+    assert [line.split(" | ")[3] for line in lines[2:]] == [
+        {True: "yes", False: "no", None: "n/a"}[o.met] for o in outcomes
+    ]
+
+
+def test_quick_steps_the_frames_and_renders_no_cycles(fake_rates, monkeypatch):
+    _, calls = fake_rates
+    import bench.benchmarks.render as render
+
+    monkeypatch.setattr(render, "bench_render", lambda *a, **k: pytest.fail("rendered"))
+    outcomes = t.measure(QUICK, INDOOR, quick=True)
+    assert {c[0].frames_step for c in calls} == {t.QUICK_FRAMES_STEP}
+    by_key = {o.target.key: o for o in outcomes}
+    assert by_key["1a"].command.endswith(f"--frames-step {t.QUICK_FRAMES_STEP}")
+    assert "--quick renders no Cycles" in by_key["2a"].why
+
+
+def _render_figures(wall: float, cpu: float, equal: bool) -> dict:
+    rows = {k: {"wall_s": [9.0, s]} for k, s in (("cycles", 12.0), ("project", 1.0))}
+    return {"ratio_wall": wall, "ratio_cpu": cpu, "detection_equal": equal, **rows}
+
+
+@pytest.mark.parametrize(("wall", "cpu", "equal"), [(12.0, 11.0, True), (12.0, 9.0, True),
+                                                     (30.0, 30.0, False)])  # fmt: skip
+def test_render_ratio_is_the_smaller_one_and_only_at_equal_detection(monkeypatch, wall, cpu, equal):
+    import bench.benchmarks.cycles_scene as cycles
+    import bench.benchmarks.render as render
+
+    monkeypatch.setattr(cycles, "import_bpy", lambda: object())
+    monkeypatch.setattr(render, "bench_render", lambda *a, **k: _render_figures(wall, cpu, equal))
+    outcome = t.render_ratio("array", "2a")
+    if not equal:
+        assert outcome.figure is None and "detections differ" in outcome.why
+        return
+    assert outcome.figure == min(wall, cpu) and outcome.met is (min(wall, cpu) >= 10)
+    assert "Cycles 12.00 s" in outcome.baseline
+
+
+def test_gpu_row_measures_on_a_device(fake_rates, monkeypatch):
+    rates, calls = fake_rates
+    rates["gpu"] = 400.0
+    monkeypatch.setattr(t, "gpu_present", lambda: True)
+    outcome = t.gpu_outcome(QUICK, 10.0, "")
+    assert outcome.figure == 400.0 and outcome.met is True
+    assert "40.0x the CPU" in outcome.baseline and calls[-1][1:] == (1, "cuda_ad_rgb")
+
+
+@pytest.mark.skipif(shutil.which("make") is None, reason="needs make")
+def test_test_rows_time_make_and_a_failure_has_no_figure(tmp_path):
+    (tmp_path / "Makefile").write_text("test:\n\ttrue\ntest-fast:\n\tfalse\n")
+    passed = t.suite_outcome("4a", tmp_path, measure=True)
+    assert passed.figure is not None and passed.figure > 0 and passed.met is True
+    failed = t.suite_outcome("4b", tmp_path, measure=True)
+    assert failed.figure is None and "make test-fast failed (exit 2)" in failed.why
+    missing = t.suite_outcome("4a", tmp_path / "nowhere", measure=True)
+    assert missing.figure is None and "no Makefile" in missing.why
+
+
+def test_csv_has_a_row_per_target_and_empty_cells_where_unmeasured():
+    outcomes = [t.Outcome(t.BY_KEY["1a"], 16.0, "2.00x"), t.Outcome(t.BY_KEY["4a"], None, why="w")]
+    rows = list(csv.DictReader(io.StringIO(t.csv_text(outcomes))))
+    assert list(rows[0]) == list(t.CSV_COLUMNS)
+    assert (rows[0]["figure"], rows[0]["met"], rows[0]["threshold"]) == ("16.0", "true", "15")
+    assert (rows[1]["figure"], rows[1]["met"], rows[1]["baseline"]) == ("", "", "w")
+
+
+def test_writes_csv_and_manifest_and_refuses_another_commands_folder(fake_rates, tmp_path):
+    out = tmp_path / "targets"
+    outcomes = t.bench_targets(QUICK, INDOOR, out, quick=True)
+    rows = list(csv.DictReader(io.StringIO((out / "targets.csv").read_text())))
+    assert [r["target"] for r in rows] == [o.target.key for o in outcomes]
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["kind"] == "bench-targets" and "targets.csv" in manifest["outputs"]
+    assert len(manifest["load_average"]) == 2  # what the figures were measured under
+    other = tmp_path / "other"
+    other.mkdir()
+    (other / "manifest.json").write_text(json.dumps({"kind": "bench-scale"}))
+    calls = len(fake_rates[1])
+    with pytest.raises(FieldError) as err:
+        t.bench_targets(QUICK, INDOOR, other, quick=True)
+    assert err.value.field == "out" and len(fake_rates[1]) == calls  # refused before any work
+
+
+@pytest.mark.slow
+def test_quick_run_prints_a_row_per_target(variant, pair_config, tmp_path, capsys):
+    if variant.startswith("scalar"):
+        pytest.skip("frame rendering needs a JIT variant")
+    outcomes = t.bench_targets(pair_config, INDOOR, tmp_path / "b", quick=True)  # a few frames
+    printed = capsys.readouterr().out
+    assert HEADER in printed and t.table(outcomes) in printed
+    for o in outcomes:
+        assert (o.figure is None) == (o.met is None) == bool(o.why.startswith("not "))
+        assert o.met is None or o.met == t.judge(o.figure, o.target.threshold, o.target.above)
+    measured = {o.target.key for o in outcomes if o.figure is not None}
+    assert {"1a", "1b", "1c"} <= measured
+    assert all(o.figure > 0 for o in outcomes if o.figure is not None)
