@@ -7,6 +7,7 @@ import pandas as pd
 import pytest
 from matplotlib.colors import to_hex
 from matplotlib.figure import Figure
+from matplotlib.transforms import Bbox
 from PIL import Image
 from test_report import SMALL_GRID, synthetic_images
 
@@ -224,3 +225,35 @@ def test_ladder_chart_names_its_options(saved, tmp_path):
     assert "options: --quick --spp 1,4,16" in png_title(path)
     assert series_colours(saved[-1]) <= OKABE_ITO
     assert_legends_clear_of_data(saved[-1])
+
+
+def test_ladder_rung_names_stay_in_their_panel_clear_of_each_other_and_the_star(saved, tmp_path):
+    """The ladder's crowd: camera stages at nearly one cost on the panel's floor, beside the
+    reference star, and one far rung that stretches the axes."""
+    from bench.ladder import report
+
+    names = ["mosaic", "noise", "lateral_colour", "relative_illumination", "stream"]
+    rungs = pd.DataFrame(
+        {
+            "part": ["study"] * 6,
+            "axis": ["reference", *["stage"] * 5],
+            "rung": ["reference", *names],
+            "s_per_image": [5.4, 4.9, 5.0, 5.1, 5.2, 40.0],
+            "rate_err_max": [0.0, 0.0, 0.0, 0.0, 0.0, 0.6],
+            "corner_err_px": [0.1] * 6,
+            "matches_reference": [True, True, False, True, True, False],
+        }
+    )
+    report.plot(rungs, report.defaults_table(rungs), tmp_path / "ladder.png")
+    renderer = saved[-1].saved_renderer
+    ax = saved[-1].axes[0]
+    texts = [t for t in ax.texts if t.get_text()]
+    assert sorted(n.strip() for t in texts for n in t.get_text().split(",")) == sorted(names)
+    boxes = [t.get_window_extent(renderer) for t in texts]
+    frame = ax.get_window_extent(renderer)
+    (x, y), r = ax.transData.transform((5.4, 0.0)), 8  # the star: about 17 px across
+    star = Bbox.from_extents(x - r, y - r, x + r, y + r)
+    for i, box in enumerate(boxes):
+        assert frame.x0 <= box.x0 and box.x1 <= frame.x1, texts[i].get_text()
+        assert frame.y0 <= box.y0 and box.y1 <= frame.y1, texts[i].get_text()
+        assert not any(box.overlaps(b) for b in [*boxes[i + 1 :], star]), texts[i].get_text()

@@ -1,6 +1,7 @@
 """``whiskerbench replot``: committed result folders' figures drawn again from their own tables,
-the tables untouched and the manifest still verifying; a folder whose tables are not its
-manifest's, or of a kind it does not know, refused in one line with nothing written."""
+the tables untouched and the manifest still verifying; a fresh score folder's figure drawn
+again exactly as its run drew it; a folder whose tables are not its manifest's, are damaged, or
+of a kind it does not know, refused in one line with no folder named touched."""
 
 import hashlib
 import json
@@ -8,9 +9,11 @@ import shutil
 from pathlib import Path
 
 import pytest
+from fake_dataset import SAMPLES, make_dataset
 from PIL import Image
 
 from bench.cli.main import main
+from bench.common.run_folder import LOCK
 
 RESULTS = Path(__file__).resolve().parents[1] / "results"
 
@@ -21,13 +24,15 @@ def _digest(path: Path) -> str:
 
 def _copy(name: str, tmp_path: Path) -> Path:
     """A committed result folder as git has it (its ignored bulk files left out)."""
-    out = tmp_path / Path(name).name
+    out = tmp_path / name.replace("/", "-")
     shutil.copytree(RESULTS / name, out, ignore=shutil.ignore_patterns("cells", "images.parquet"))
     return out
 
 
 def _files(folder: Path) -> dict[str, str]:
-    return {p.name: _digest(p) for p in sorted(folder.iterdir()) if p.is_file()}
+    """Every file's hash by its path in the folder; the lock file is no result."""
+    paths = sorted(p for p in folder.rglob("*") if p.is_file() and p.name != LOCK)
+    return {p.relative_to(folder).as_posix(): _digest(p) for p in paths}
 
 
 @pytest.mark.parametrize(
@@ -37,6 +42,8 @@ def _files(folder: Path) -> dict[str, str]:
          "options: --cell-px 8"),
         ("indoor", "score-manifest.json", ["grid-indoor-sun.png"], "paper: indoor, sun"),
         ("ladder", "manifest.json", ["ladder.png"], "ladder"),
+        ("compare/default", "manifest.json", ["pareto.png", "sweeps.png"],
+         "Accuracy against speed on compare"),
     ],
 )  # fmt: skip
 def test_figures_are_redrawn_from_the_tables_and_the_manifest_verifies(
@@ -55,7 +62,7 @@ def test_figures_are_redrawn_from_the_tables_and_the_manifest_verifies(
             assert image.text.get("Title") is not None  # drawn by today's figures.save
     assert any(title_says in Image.open(folder / f).text["Title"] for f in figures)
     listed = {k: v for k, v in record["outputs"].items() if (folder / k).exists()}
-    assert all(after[Path(k).name] == v for k, v in listed.items())  # the folder verifies
+    assert all(after[k] == v for k, v in listed.items())  # the folder verifies
     assert record["replotted"]["figures"] == figures
     assert capsys.readouterr().out.count("redrew") == len(figures)
 
@@ -80,9 +87,48 @@ def test_a_table_that_is_not_the_manifests_is_refused_and_nothing_is_written(tmp
 def test_folders_replot_does_not_know_are_refused(tmp_path, capsys):
     _refused(["replot", str(tmp_path / "nowhere")], capsys, "not a folder")
     _refused(["replot", str(tmp_path)], capsys, "not a result folder")
-    compare = tmp_path / "compare"
-    compare.mkdir()
-    (compare / "manifest.json").write_text(json.dumps({"kind": "compare", "outputs": {}}))
-    _refused(["replot", str(compare)], capsys, "a run of kind 'compare'")
-    (compare / "manifest.json").write_text("{" * 10_000)
-    _refused(["replot", str(compare)], capsys, "manifest.json")
+    other = tmp_path / "other"
+    other.mkdir()
+    (other / "manifest.json").write_text(json.dumps({"kind": "dataset", "outputs": {}}))
+    _refused(["replot", str(other)], capsys, "a run of kind 'dataset'")
+    (other / "manifest.json").write_text("{" * 10_000)
+    _refused(["replot", str(other)], capsys, "manifest.json")
+
+
+def test_a_score_folder_is_redrawn_exactly_as_its_run_drew_it(tmp_path):
+    """Another tool's branch estimates scored by the project's own writer: the same table and
+    recorded name give the same figure, title ("branches only") included, byte for byte."""
+    long, short = SAMPLES
+    dataset, branches, out = make_dataset(tmp_path / "data"), tmp_path / "b.csv", tmp_path / "out"
+    branches.write_text(f"sample_id,whisker_left,whisker_right\n{long},,\n{short},0,1\n")
+    argv = ["score", str(dataset), "--branches", str(branches), "--name", "mine", "--out"]
+    assert main([*argv, str(out)]) == 0
+    before = _files(out)
+    (figure,) = [name for name in before if name.endswith(".png")]
+    (out / figure).write_bytes(b"stale")
+    assert main(["replot", str(out)]) == 0
+    record = json.loads((out / "manifest.json").read_text())
+    assert _files(out) == {**before, "manifest.json": _digest(out / "manifest.json")}
+    assert record["outputs"][figure] == before[figure]
+    assert "branches only" in Image.open(out / figure).text["Title"]
+
+
+def _damage(folder: Path, name: str, text: str) -> None:
+    """``name`` rewritten and its new hash recorded: the manifest vouches for a damaged table."""
+    (folder / name).write_text(text)
+    record = json.loads((folder / "manifest.json").read_text())
+    record["outputs"][name] = _digest(folder / name)
+    (folder / "manifest.json").write_text(json.dumps(record))
+
+
+def test_a_damaged_table_is_refused_and_no_folder_named_is_touched(tmp_path, capsys):
+    good, bad = _copy("ladder", tmp_path), _copy("compare/default", tmp_path)
+    (good / "ladder.png").write_bytes(b"stale")  # would be redrawn, were bad not refused
+    summary = (bad / "summary.csv").read_text().splitlines()
+    _damage(bad, "summary.csv", "\n".join(line.split(",", 1)[1] for line in summary) + "\n")
+    before = {**_files(good), **{f"bad/{k}": v for k, v in _files(bad).items()}}
+    _refused(["replot", str(good), str(bad)], capsys, "is damaged or from another version")
+    assert {**_files(good), **{f"bad/{k}": v for k, v in _files(bad).items()}} == before
+    assert not [p for p in [*good.iterdir(), *bad.iterdir()] if ".tmp-" in p.name]
+    _damage(good, "config.json", "[1]")
+    _refused(["replot", str(good)], capsys, "ladder: a table or its config is damaged")

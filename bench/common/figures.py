@@ -82,14 +82,17 @@ LABEL_SPOTS = tuple(
 )
 #: Points closer than this on screen (px) are one place: one name lists them all.
 SAME_PLACE_PX = 4.0
+#: Half the side (px) of the square a large marker (a reference star, a ring) keeps clear.
+LARGE_MARKER_PX = 12.0
 
 
 def label_points(ax: plt.Axes, xs: Sequence[float], ys: Sequence[float], names: Sequence[str],
-                 fontsize: float = 7) -> None:  # fmt: skip
+                 fontsize: float = 7,
+                 avoid: Sequence[tuple[float, float]] = ()) -> None:  # fmt: skip
     """Name each point beside it, no name over another name or a point: points that coincide
     on screen share one name ("a, b"); a name that would cover one already placed, another
-    point or the axes' edge takes the first free spot of :data:`LABEL_SPOTS` (the first spot
-    if none is free).
+    point, a large marker at an ``avoid`` point (x, y) or the axes' edge takes the first free
+    spot of :data:`LABEL_SPOTS` (the first spot if none is free).
     The figure is drawn once first, so that its layout has settled the axes' scales."""
     import numpy as np
     from matplotlib.transforms import Bbox
@@ -107,6 +110,8 @@ def label_points(ax: plt.Axes, xs: Sequence[float], ys: Sequence[float], names: 
         else:
             places.append((i, [str(name)]))
     dots = [Bbox.from_extents(x - 4, y - 4, x + 4, y + 4) for x, y in screen]
+    big, r = ax.transData.transform(np.asarray(avoid, float).reshape(-1, 2)), LARGE_MARKER_PX
+    large = [Bbox.from_extents(x - r, y - r, x + r, y + r) for x, y in big]
     frame = ax.get_window_extent(renderer)  # a name stays inside the axes where it can
     taken: list = []
     for i, group in sorted(places, key=lambda p: -screen[p[0], 1]):  # top down
@@ -118,8 +123,9 @@ def label_points(ax: plt.Axes, xs: Sequence[float], ys: Sequence[float], names: 
             text = ax.annotate(", ".join(group), tuple(data[i]), fontsize=fontsize, ha=ha,
                                xytext=(dx, dy), textcoords="offset points")  # fmt: skip
             box = text.get_window_extent(renderer)
-            inside = frame.x0 <= box.x0 and box.x1 <= frame.x1 and box.y1 <= frame.y1
-            if inside and not any(box.overlaps(b) for b in taken + others):
+            inside = frame.x0 <= box.x0 and box.x1 <= frame.x1 and frame.y0 <= box.y0
+            inside = inside and box.y1 <= frame.y1
+            if inside and not any(box.overlaps(b) for b in taken + others + large):
                 break
             text.remove()
             first = first or (dx, dy, ha)

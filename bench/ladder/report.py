@@ -16,9 +16,17 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
-from matplotlib.ticker import FormatStrFormatter  # noqa: E402
+from matplotlib.ticker import FormatStrFormatter, NullFormatter  # noqa: E402
 
-from bench.common.figures import BLACK, BLUE, VERMILLION, legend_outside, save, titled  # noqa: E402
+from bench.common.figures import (  # noqa: E402
+    BLACK,
+    BLUE,
+    VERMILLION,
+    label_points,
+    legend_outside,
+    save,
+    titled,
+)
 from bench.ladder.match import knee, rung_matches  # noqa: E402
 from bench.ladder.rungs import CHECKS, current_default  # noqa: E402
 
@@ -97,8 +105,9 @@ def plot(
     """Outcome error (worst |rate - reference rate| over cells) against seconds per image, one
     panel per (part, axis), log time; the reference a star, the knee circled; a rung that
     matches the reference a blue dot, one that does not a vermillion cross (told apart by
-    shape and by colour-blind readers too). The title names the run's non-default
-    ``options``; the legend stands right of the panels."""
+    shape and by colour-blind readers too); rungs are named where no name covers another, the
+    star or the ring (:func:`bench.common.figures.label_points`). The title names the run's
+    non-default ``options``; the legend stands right of the panels."""
     panels = list(_choices(rungs).groupby(["part", "axis"], sort=False).groups)
     n = max(1, len(panels))
     cols = min(3, n)
@@ -109,6 +118,7 @@ def plot(
         layout="constrained",
     )
     axes = np.atleast_1d(axes).ravel()
+    named = []  # each panel's rungs, named once the layout is complete
     for ax, (part, axis) in zip(axes, panels, strict=False):
         group = rungs[(rungs["part"] == part) & (rungs["axis"] == axis)]
         ref = rungs[(rungs["part"] == part) & (rungs["axis"] == "reference")]
@@ -119,9 +129,6 @@ def plot(
             mine = group[group["matches_reference"] == matches]
             ax.scatter(mine["s_per_image"], mine["rate_err_max"], marker=shape, c=colour,
                        zorder=3, label=label)  # fmt: skip
-        for row in group.itertuples():
-            ax.annotate(row.rung, (row.s_per_image, row.rate_err_max), fontsize=7,
-                        xytext=(3, 3), textcoords="offset points")  # fmt: skip
         ax.scatter(ref["s_per_image"], ref["rate_err_max"], marker="*", s=160, c="k",
                    label="reference", zorder=4)  # fmt: skip
         chosen = defaults[(defaults["part"] == part) & (defaults["axis"] == axis)]
@@ -130,10 +137,14 @@ def plot(
         if len(hit):
             ax.scatter(hit["s_per_image"], hit["rate_err_max"], s=260, facecolors="none",
                        edgecolors=BLACK, linewidths=2, label="knee", zorder=5)  # fmt: skip
+        large = pd.concat([ref, hit])[["s_per_image", "rate_err_max"]].to_numpy()
+        named.append((ax, group["s_per_image"], group["rate_err_max"], group["rung"], large))
         ax.set_xscale("log")
-        # narrow ranges have no decade tick: label every tick, small
+        # narrow ranges have no decade tick: label every tick, small; wide ones their decades
+        seconds = pd.concat([group["s_per_image"], ref["s_per_image"]])
+        narrow = seconds.max() < 10 * seconds.min()
         ax.xaxis.set_major_formatter(FormatStrFormatter("%.3g"))
-        ax.xaxis.set_minor_formatter(FormatStrFormatter("%.3g"))
+        ax.xaxis.set_minor_formatter(FormatStrFormatter("%.3g") if narrow else NullFormatter())
         ax.tick_params(axis="x", which="both", labelsize=6, labelrotation=45)
         ax.set_title(f"{part}: {axis}", fontsize=9)
         ax.set_xlabel("wall s per image")
@@ -148,4 +159,6 @@ def plot(
     legend_outside(fig, list(labelled.values()), list(labelled), fontsize=8)
     title = "Fidelity ladder: outcome error against cost (each rung against the reference)"
     fig.suptitle(titled(title, options))
+    for ax, xs, ys, names, large in named:
+        label_points(ax, xs, ys, names, avoid=large)
     save(fig, path)
