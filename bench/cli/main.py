@@ -50,7 +50,7 @@ from bench.cli.render import add_bench_render_parser
 from bench.cli.replot import add_replot_parser
 from bench.cli.scale import add_scale_options, cmd_bench_scale
 from bench.common.manifest import input_digests, whiskerbench_version
-from bench.common.run_folder import set_command_line
+from bench.common.run_folder import FolderBusyError, set_command_line
 from bench.study.config import (
     DEFAULT_ALPHAS_DEG,
     DEFAULT_PHIS_DEG,
@@ -431,6 +431,9 @@ def _main(argv: list[str] | None) -> int:
         option = {**OPTION_OF_FIELD, **DATASET_OPTION_OF_FIELD}.get(exc.field, exc.field)
         detail = " ".join(exc.detail.split())  # one line, whatever the message held
         print(f"whiskerbench {command}: error: {option}: {detail}", file=sys.stderr)
+        return 2
+    except FolderBusyError as exc:  # another run holds --out: a refusal wherever it is found
+        print(f"whiskerbench {command}: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"whiskerbench {command}: interrupted: {args.kept}", file=sys.stderr)
