@@ -177,10 +177,16 @@ FORMATS = (
 # --- mutations ------------------------------------------------------------------------------
 
 
+#: Members of one object or list mutated in turn; the rest are alike (a manifest's file hashes).
+MEMBERS = 4
+
+
 def _leaves(value, path=()) -> Iterator[tuple]:
-    """Every path into a JSON/YAML document: each member and item, at every depth."""
+    """Paths into a JSON/YAML document: the first :data:`MEMBERS` members or items of each
+    object and list, at every depth."""
     if isinstance(value, dict | list):
-        for key, item in value.items() if isinstance(value, dict) else enumerate(value):
+        members = value.items() if isinstance(value, dict) else enumerate(value)
+        for key, item in list(members)[:MEMBERS]:
             yield (*path, key)
             yield from _leaves(item, (*path, key))
 
@@ -310,11 +316,11 @@ def test_a_damaged_file_of_every_format_is_refused(fmt, dataset, tmp_path, capsy
     assert tried == len(DAMAGE) and set(accepted) <= set(fmt.may_survive), accepted
 
 
-@pytest.mark.slow  # about 4 min: a few thousand runs of the commands
+@pytest.mark.slow  # about 6 min on a busy 2-core machine: a few thousand runs of the commands
 @pytest.mark.parametrize("fmt", FORMATS, ids=[f.name for f in FORMATS])
 def test_every_field_of_every_format_meets_every_hostile_value(fmt, dataset, tmp_path, capsys):
     tried, accepted = _answer_every_variant(fmt, True, dataset, tmp_path, capsys)
-    assert tried >= 40 and len(accepted) <= tried * 3 // 4, (tried, accepted)
+    assert tried >= 30 and len(accepted) <= tried * 3 // 4, (tried, accepted)
 
 
 def _answer_every_variant(

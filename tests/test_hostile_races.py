@@ -61,6 +61,7 @@ def _one_refused(results: list[tuple[int, int, str]], out: Path) -> bool:
     return codes == [0, 2]
 
 
+@pytest.mark.slow  # two real commands, up to four times
 def test_two_scores_started_together_on_one_out(tmp_path):
     """``score --branches`` with two branch files on one ``--out``: the folder holds one of
     the two runs whole (its manifest names the file whose outcomes samples.csv holds)."""

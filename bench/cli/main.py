@@ -39,6 +39,7 @@ from bench.cli.exits import (
     bug_report,
     end_quietly,
     environment_failure,
+    printable_stdout,
     stdout_closed,
     undecodable_argument,
 )
@@ -404,6 +405,7 @@ def command_name(args: argparse.Namespace) -> str:
 def main(argv: list[str] | None = None) -> int:
     """Run one command; its exit code. A reader that closes stdout early (``| head -1``)
     wanted no more output: the command ends quietly, with SIGPIPE's shell exit code."""
+    printable_stdout()
     try:
         try:
             return _main(argv)
@@ -427,13 +429,11 @@ def _main(argv: list[str] | None) -> int:
     try:
         check_variant(getattr(args, "variant", None))
         return args.func(args)
-    except FieldError as exc:
-        option = {**OPTION_OF_FIELD, **DATASET_OPTION_OF_FIELD}.get(exc.field, exc.field)
-        detail = " ".join(exc.detail.split())  # one line, whatever the message held
+    except (FieldError, FolderBusyError) as exc:  # busy: another run holds the output folder
+        field = getattr(exc, "field", "out")
+        option = {**OPTION_OF_FIELD, **DATASET_OPTION_OF_FIELD}.get(field, field)
+        detail = " ".join(getattr(exc, "detail", str(exc)).split())  # one line, whatever it held
         print(f"whiskerbench {command}: error: {option}: {detail}", file=sys.stderr)
-        return 2
-    except FolderBusyError as exc:  # another run holds --out: a refusal wherever it is found
-        print(f"whiskerbench {command}: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"whiskerbench {command}: interrupted: {args.kept}", file=sys.stderr)
