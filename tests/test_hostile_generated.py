@@ -409,3 +409,19 @@ def test_what_the_field_tier_found_stays_refused(
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and re.search(pattern, err[0]), err
     assert _files(watched) == before
+
+
+def test_a_sample_in_which_no_marker_is_ever_seen_is_refused_not_the_run(tmp_path, capsys):
+    """A dataset of noise frames: a sample with no marker seen is ``refused`` with its reason
+    and named in a warning; it used to end the whole run in one line naming no sample."""
+    data = make_dataset(tmp_path / "data", dict(zip(SAMPLES, (12, 5), strict=True)))
+    out = tmp_path / "out"
+    assert main(["score", str(data), "--out", str(out)]) == 0, capsys.readouterr().err
+    err = capsys.readouterr().err
+    table = pd.read_csv(out / "samples.csv").set_index("sample_id")
+    blind = table[table["markers_found"].fillna(0) == 0].index
+    assert len(blind) >= 1
+    for sample_id in blind:
+        assert table.loc[sample_id, "outcome"] == "refused"
+        assert "no marker seen in any frame" in table.loc[sample_id, "refused_reason"]
+        assert f"warning: {sample_id} refused: no marker seen" in err
