@@ -20,6 +20,7 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 import pytest
 import yaml
@@ -146,6 +147,25 @@ def _calibration(fmt: str):
     return make
 
 
+def _truth_csv(folder: Path, dataset: Path):
+    """A still image of one marker on white and its corners, for ``detect-images --truth``."""
+    import cv2
+
+    marker = cv2.aruco.generateImageMarker(cv2.aruco.getPredefinedDictionary(0), 3, 40)
+    image = np.full((80, 80), 255, np.uint8)
+    image[20:60, 20:60] = marker
+    cv2.imwrite(str(folder / "still.png"), image)
+    path = folder / "truth.csv"
+    corners = "19.5,19.5,59.5,19.5,59.5,59.5,19.5,59.5"
+    path.write_text(f"image,marker_id,x0,y0,x1,y1,x2,y2,x3,y3\nstill.png,3,{corners}\n")
+    argv = ["detect-images", str(folder / "still.png"), "--pipelines", "naive"]
+    return (
+        path,
+        [*argv, "--family", "4x4_50", "--truth", str(path), "--out", str(folder / "out")],
+        folder,
+    )
+
+
 #: Camera profiles and observations files are generated the same way in test_hostile_files.py.
 FORMATS = (
     Format(
@@ -169,6 +189,7 @@ FORMATS = (
         may_survive=("not UTF-8", "doubled"),
     ),
     Format("branches file CSV", _branches, "csv"),
+    Format("ground truth CSV (detect-images)", _truth_csv, "csv"),
     Format("dataset manifest", _manifest, "json", unread=(("schema",),)),
     Format("sample.json", _sample_json, "json", rehash=_rehash_sample),
 )
