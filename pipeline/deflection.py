@@ -98,13 +98,14 @@ def no_contact_pose(
     SO(3) by SVD (a proper rotation average, exact for rotations symmetric about a common one).
 
     R_cam_marker (F, n, 3, 3), t_cam_marker (F, n, 3) mm, NaN where unseen. A marker never seen
-    gets NaN and ``first_frame`` -1 (``.unseen``); ValueError if no marker was seen in any frame.
+    gets NaN and ``first_frame`` -1 (``.unseen``); NoBaselineError if no marker was seen in any
+    frame.
     """
     if baseline_frames < 1:
         raise ValueError(f"baseline_frames must be >= 1, got {baseline_frames}")
     seen = _seen_poses(R_cam_marker, t_cam_marker)
-    if not seen.any():
-        raise ValueError(
+    if not seen.any():  # the sample's to refuse, not the run's: a NoBaselineError
+        raise NoBaselineError(
             "no marker seen in any frame: no no-contact frames to take T_cam_marker0 from"
         )
     baseline = _baseline(seen, baseline_frames)

@@ -257,7 +257,7 @@ def _basalt(path: Path, text: str, index: int) -> tuple[str, Intrinsics]:
     key = f"value0.intrinsics[{index}]"
     cam = _mapping(path, key, cams[index])
     kind = cam.get("camera_type")
-    if kind not in BASALT_TYPES:
+    if not isinstance(kind, str) or kind not in BASALT_TYPES:  # a list or object: unhashable
         raise CalibrationError(
             path,
             f"{key}.camera_type",

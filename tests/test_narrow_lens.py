@@ -58,3 +58,27 @@ def test_the_sweeps_built_in_alphas_fit_a_narrow_lens(sweep):
         sweep, camera=NARROW, alphas_deg=alphas_within(sweep.alphas_deg, NARROW)
     )
     assert max(fitted.alphas_deg) == 60.0
+
+
+@pytest.mark.parametrize("quick", [[], ["--quick"]])
+def test_the_run_limits_measure_a_narrow_lens_against_its_own_default_grid(narrow_json, quick):
+    """The limits compare a run with the default grid on its camera: built with every default
+    alpha, it refused `detectability --quick` on a 60-degree lens blaming --alphas."""
+    from bench.cli import limits
+
+    args = _parser().parse_args(["detectability", "--camera", str(narrow_json), *quick])
+    limits.check_study(study_config(args), 1)
+
+
+@pytest.mark.parametrize("quick", [[], ["--quick"]])
+def test_the_command_passes_every_check_on_a_narrow_lens(
+    narrow_json, quick, tmp_path, capsys, monkeypatch
+):
+    """Through main, up to the study itself (stopped there as by Ctrl-C): not refused."""
+
+    def stop(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr("bench.study.run.run_study", stop)
+    argv = ["detectability", "--camera", str(narrow_json), *quick, "--out", str(tmp_path / "r")]
+    assert main(argv) == 130, capsys.readouterr().err

@@ -48,6 +48,14 @@ def stdout_closed() -> bool:
     return any(events & select.POLLERR for _, events in poll.poll(0))
 
 
+def printable_stdout() -> None:
+    """Let stdout print any path: a character its encoding lacks (``PYTHONIOENCODING=ascii``,
+    a Latin-1 terminal) is escaped, as stderr's are, instead of failing after all the work."""
+    reconfigure = getattr(sys.stdout, "reconfigure", None)  # None: a test's capture, or closed
+    if reconfigure is not None:
+        reconfigure(errors="backslashreplace")
+
+
 def end_quietly() -> int:
     """:data:`STDOUT_CLOSED`, once stdout points at /dev/null: the interpreter flushes stdout
     again at exit, which would otherwise print a second error."""

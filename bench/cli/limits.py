@@ -143,7 +143,7 @@ def check_study(config, workers: int) -> None:
 
     ``config``: a :class:`bench.study.config.StudyConfig`.
     """
-    from bench.study.config import StudyConfig
+    from bench.study.config import DEFAULT_ALPHAS_DEG, StudyConfig, alphas_within
 
     check_camera(config.camera)
     check_workers("workers", workers)
@@ -151,7 +151,10 @@ def check_study(config, workers: int) -> None:
     render_s = STUDY_RENDER_S_AT_16_SPP * config.spp / 16
     image_s = STUDY_IMAGE_S * len(config.psf_scales)
     total = cells * (render_s + config.images * image_s)
-    default = StudyConfig(camera=config.camera)
+    # the default grid on this camera: its alphas end at a narrow lens's edge, as the CLI's do
+    default = StudyConfig(
+        camera=config.camera, alphas_deg=alphas_within(DEFAULT_ALPHAS_DEG, config.camera)
+    )
     field = culprit(
         {
             "spp": config.spp / default.spp,

@@ -39,6 +39,7 @@ from bench.cli.exits import (
     bug_report,
     end_quietly,
     environment_failure,
+    printable_stdout,
     stdout_closed,
     undecodable_argument,
 )
@@ -51,7 +52,7 @@ from bench.cli.replot import add_replot_parser
 from bench.cli.scale import add_scale_options, cmd_bench_scale
 from bench.cli.targets import add_bench_targets_parser
 from bench.common.manifest import input_digests, whiskerbench_version
-from bench.common.run_folder import set_command_line
+from bench.common.run_folder import FolderBusyError, set_command_line
 from bench.study.config import (
     DEFAULT_ALPHAS_DEG,
     DEFAULT_PHIS_DEG,
@@ -406,6 +407,7 @@ def command_name(args: argparse.Namespace) -> str:
 def main(argv: list[str] | None = None) -> int:
     """Run one command; its exit code. A reader that closes stdout early (``| head -1``)
     wanted no more output: the command ends quietly, with SIGPIPE's shell exit code."""
+    printable_stdout()
     try:
         try:
             return _main(argv)
@@ -429,9 +431,10 @@ def _main(argv: list[str] | None) -> int:
     try:
         check_variant(getattr(args, "variant", None))
         return args.func(args)
-    except FieldError as exc:
-        option = {**OPTION_OF_FIELD, **DATASET_OPTION_OF_FIELD}.get(exc.field, exc.field)
-        detail = " ".join(exc.detail.split())  # one line, whatever the message held
+    except (FieldError, FolderBusyError) as exc:  # busy: another run holds the output folder
+        field = getattr(exc, "field", "out")
+        option = {**OPTION_OF_FIELD, **DATASET_OPTION_OF_FIELD}.get(field, field)
+        detail = " ".join(getattr(exc, "detail", str(exc)).split())  # one line, whatever it held
         print(f"whiskerbench {command}: error: {option}: {detail}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

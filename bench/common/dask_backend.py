@@ -11,7 +11,7 @@ Imported only when the Dask backend is chosen: ``distributed`` is slow to import
 
 from __future__ import annotations
 
-import contextlib
+import asyncio
 import threading
 import time
 import uuid
@@ -24,40 +24,44 @@ from bench.common.executor import CONNECT_TIMEOUT_S
 
 _slot: tuple[str, Any] | None = None  # (pool key, its context) in a worker process
 _slot_lock = threading.Lock()
+#: How often :func:`scheduler_workers` asks a scheduler whether a worker has joined (s).
+WORKER_POLL_S = 0.2
 
 
 def scheduler_workers(address: str, timeout_s: float) -> int:
     """How many workers the Dask scheduler at ``address`` has, waiting up to ``timeout_s``.
 
-    Bounded even when the peer accepts TCP and never answers: ``Client(timeout=...)`` then
-    waits on the handshake for ever, so the client runs in a daemon thread that is abandoned at
-    the deadline (it holds a socket until the process exits, nothing else). 0 when a scheduler
-    answered but no worker joined it by the deadline; TimeoutError when nothing answered as a
-    Dask scheduler; the client's own error when the peer answered but not as a scheduler.
+    Asked over Dask's own RPC (``identity``), not through a ``Client``: a client whose
+    handshake failed stays half-made and, when collected, waits to close for longer than the
+    deadline and prints a traceback. 0 when a scheduler answered but no worker joined it by the
+    deadline; TimeoutError when nothing answered; ConnectionError naming the client's error when
+    the peer answered but not as a Dask scheduler (junk bytes, another protocol).
     """
+    from distributed.core import rpc
+
     deadline = time.monotonic() + timeout_s
-    result: dict[str, Any] = {}
-    done = threading.Event()
+    answered = False
 
-    def probe() -> None:
-        try:
-            with Client(address, timeout=timeout_s, set_as_default=False) as client:
-                result["connected"] = True
-                with contextlib.suppress(TimeoutError):  # none by the deadline: counted below
-                    client.wait_for_workers(1, timeout=max(deadline - time.monotonic(), 0.01))
-                result["workers"] = len(client.scheduler_info()["workers"])
-        except Exception as exc:  # handed to the caller's thread
-            result["error"] = exc
-        finally:
-            done.set()
+    async def ask() -> int:
+        nonlocal answered
+        async with rpc(address, timeout=timeout_s) as scheduler:
+            while True:
+                info = await scheduler.identity()
+                if not isinstance(info, dict) or info.get("type") != "Scheduler":
+                    raise ConnectionError("the peer answered, but not as a Dask scheduler")
+                answered = True
+                if info.get("workers") or time.monotonic() >= deadline - WORKER_POLL_S:
+                    return len(info.get("workers") or {})
+                await asyncio.sleep(WORKER_POLL_S)
 
-    threading.Thread(target=probe, name=f"probe {address}", daemon=True).start()
-    done.wait(timeout_s)
-    if "workers" in result or "connected" in result:  # a scheduler, maybe closing at the deadline
-        return result.get("workers", 0)
-    if "error" in result:
-        raise result["error"]
-    raise TimeoutError("no reply")
+    try:
+        return asyncio.run(asyncio.wait_for(ask(), timeout_s))
+    except TimeoutError:  # asyncio.TimeoutError is TimeoutError
+        if answered:  # a scheduler, no worker by the deadline
+            return 0
+        raise TimeoutError("no reply") from None
+    except Exception as exc:  # words only: the traceback would keep the connection alive
+        raise ConnectionError(f"{type(exc).__name__}: {exc}") from None
 
 
 def _run_on_worker(

@@ -21,7 +21,7 @@ from bench.common.manifest import MANIFEST, kind_of, read_manifest, sha256
 from bench.dataset.config import SAMPLE_FILES
 from bench.dataset.format import DatasetFormatError, check_format_version
 from scenes.bounded_read import read_json
-from scenes.input_limits import RECORD_BYTES, RECORD_DEPTH
+from scenes.input_limits import RECORD_BYTES, RECORD_DEPTH, VIDEO_FRAMES
 
 #: A sample id: a plain folder name (no separator, no leading dot, so never ``..``).
 SAMPLE_ID = re.compile(r"[A-Za-z0-9][A-Za-z0-9._+-]*")
@@ -35,6 +35,7 @@ RECORD_KEYS = (
     "branch_gaps",
     "protocol",
     "lighting",
+    "frames",
 )
 
 
@@ -158,16 +159,27 @@ def _check_truth(record: dict, path: Path) -> None:
     protocol = record["protocol"]
     if not isinstance(protocol, dict) or not isinstance(protocol.get("name"), str):
         raise DatasetIntegrityError(f"{path}: 'protocol' must be an object with a 'name'")
+    if not _is_number(protocol.get("fps")) or protocol["fps"] <= 0:
+        raise DatasetIntegrityError(
+            f"{path}: 'protocol.fps' must be a finite number > 0, got {protocol.get('fps')!r}"
+        )
+    frames = record["frames"]
+    if not isinstance(frames, int) or isinstance(frames, bool) or not 1 <= frames <= VIDEO_FRAMES:
+        raise DatasetIntegrityError(
+            f"{path}: 'frames' must be an integer in 1..{VIDEO_FRAMES}, got {frames!r}"
+        )
     branches, gaps = record["branches_mm"], record["branch_gaps"]
-    if not isinstance(branches, list) or not all(
-        isinstance(b, int | float) and not isinstance(b, bool) and math.isfinite(b)
-        for b in branches
-    ):
+    if not isinstance(branches, list) or not all(map(_is_number, branches)):
         raise DatasetIntegrityError(f"{path}: 'branches_mm' must be a list of finite numbers (mm)")
     if not isinstance(gaps, list) or len(gaps) != len(branches) or not all(map(_is_gap, gaps)):
         raise DatasetIntegrityError(
             f"{path}: 'branch_gaps' must hold one [i, i + 1] pair of whisker indices per branch"
         )
+
+
+def _is_number(value: object) -> bool:
+    """A finite JSON number (not a boolean)."""
+    return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
 
 
 def _is_gap(gap: object) -> bool:
