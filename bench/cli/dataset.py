@@ -291,6 +291,19 @@ def cmd_dataset(args: argparse.Namespace) -> int:
     return 0
 
 
+def add_bench_dataset_parser(bench_sub: argparse._SubParsersAction) -> None:
+    """Register ``bench dataset`` on the ``bench`` subparsers."""
+    bdata = bench_sub.add_parser(
+        "dataset", help="frames/s of band and full-frame rendering, and their detections"
+    )
+    add_dataset_options(bdata)
+    bdata.add_argument("--frames", type=int, default=30, help="frames timed per mode (default 30)")
+    bdata.add_argument(
+        "--out", help="also write bench.json and a still frame (still.png) into this folder"
+    )
+    bdata.set_defaults(func=cmd_bench_dataset)
+
+
 def cmd_bench_dataset(args: argparse.Namespace) -> int:
     from bench.benchmarks.dataset import bench_dataset
 

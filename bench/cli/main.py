@@ -33,7 +33,7 @@ from bench.cli.compare import (
     cmd_compare,
 )
 from bench.cli.dataset import OPTION_OF_FIELD as DATASET_OPTION_OF_FIELD
-from bench.cli.dataset import add_dataset_options, cmd_bench_dataset, cmd_dataset
+from bench.cli.dataset import add_bench_dataset_parser, add_dataset_options, cmd_dataset
 from bench.cli.evaluate import add_detect_options, add_score_options, cmd_detect, cmd_score
 from bench.cli.exits import (
     bug_report,
@@ -373,15 +373,7 @@ def _parser() -> argparse.ArgumentParser:
     )
     add_executor_options(data)
     data.set_defaults(func=cmd_dataset)
-    bdata = bench_sub.add_parser(
-        "dataset", help="frames/s of band and full-frame rendering, and their detections"
-    )
-    add_dataset_options(bdata)
-    bdata.add_argument("--frames", type=int, default=30, help="frames timed per mode (default 30)")
-    bdata.add_argument(
-        "--out", help="also write bench.json and a still frame (still.png) into this folder"
-    )
-    bdata.set_defaults(func=cmd_bench_dataset)
+    add_bench_dataset_parser(bench_sub)
     bscale = bench_sub.add_parser(
         "scale", help="images/s and frames/s against executor and workers, default grids' time"
     )
