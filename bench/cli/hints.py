@@ -24,7 +24,8 @@ def summary_hints(
     if refused:
         hints.append(
             f"note: {name} refused {refused} of {samples} samples: no no-contact pose to measure "
-            "deflections from (the markers moved within their first sightings), so no answer "
+            "deflections from (the markers moved within their first sightings, or were never "
+            "seen), so no answer "
             f"rather than a wrong one; why, per sample: refused_reason in {samples_csv} ({DOCS})"
         )
     if not math.isnan(recall) and recall < LOW_RECALL:
