@@ -119,9 +119,15 @@ def label_points(ax: plt.Axes, xs: Sequence[float], ys: Sequence[float], names: 
             d for j, d in enumerate(dots) if np.hypot(*(screen[j] - screen[i])) >= SAME_PLACE_PX
         ]
         first = None
+
+        def put(dx: float, dy: float, ha: str, group=group, i=i):  # not in the layout
+            return ax.annotate(
+                ", ".join(group), tuple(data[i]), fontsize=fontsize, ha=ha, xytext=(dx, dy),
+                textcoords="offset points", in_layout=False,
+            )  # fmt: skip
+
         for dx, dy, ha in LABEL_SPOTS:
-            text = ax.annotate(", ".join(group), tuple(data[i]), fontsize=fontsize, ha=ha,
-                               xytext=(dx, dy), textcoords="offset points")  # fmt: skip
+            text = put(dx, dy, ha)
             box = text.get_window_extent(renderer)
             inside = frame.x0 <= box.x0 and box.x1 <= frame.x1 and frame.y0 <= box.y0
             inside = inside and box.y1 <= frame.y1
@@ -130,9 +136,7 @@ def label_points(ax: plt.Axes, xs: Sequence[float], ys: Sequence[float], names: 
             text.remove()
             first = first or (dx, dy, ha)
         else:  # nowhere free: the first spot
-            dx, dy, ha = first
-            text = ax.annotate(", ".join(group), tuple(data[i]), fontsize=fontsize, ha=ha,
-                               xytext=(dx, dy), textcoords="offset points")  # fmt: skip
+            text = put(*first)
             box = text.get_window_extent(renderer)
         taken.append(box)
 

@@ -9,6 +9,7 @@ dotted line at its accuracy, labelled "accuracy only".
 
 from __future__ import annotations
 
+import textwrap
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -43,6 +44,10 @@ def pareto_front(speed: np.ndarray, accuracy: np.ndarray, higher_better: bool) -
         better = (speed >= speed[i]) & (acc >= acc[i]) & ((speed > speed[i]) | (acc > acc[i]))
         front[i] &= not better.any()
     return front
+
+
+#: A panel's title wraps here: a method named by a long path must not squeeze the panels away.
+PANEL_TITLE_WIDTH = 60
 
 
 def plot_pareto(
@@ -86,10 +91,13 @@ def plot_pareto(
         named.append((ax, speed[placed], acc[placed], names[placed]))
         for y, name in zip(acc[untimed], names[untimed], strict=True):
             ax.axhline(y, ls=":", c=BLUE, lw=1.2)
+            # a long name may spill past the panel: it must not shrink the panels (in_layout)
             ax.annotate(f"{name} (accuracy only)", (0.01, y), xycoords=("axes fraction", "data"),
-                        fontsize=7, xytext=(0, 3), textcoords="offset points")  # fmt: skip
+                        fontsize=7, xytext=(0, 3), textcoords="offset points",
+                        in_layout=False)  # fmt: skip
         if not np.isfinite(acc).all():
-            ax.set_title(f"no value: {', '.join(names[~np.isfinite(acc)])}", fontsize=8)
+            missing = f"no value: {', '.join(names[~np.isfinite(acc)])}"
+            ax.set_title(textwrap.fill(missing, PANEL_TITLE_WIDTH), fontsize=8)  # long names
         if placed.any():  # an empty panel has no range to log-scale
             ax.set_xscale("log")
             ax.xaxis.set_minor_formatter(NullFormatter())  # crowded labels between decades
