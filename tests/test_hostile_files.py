@@ -10,13 +10,13 @@ is not a finite number is never accepted where a number stands. The suite grows 
 
 from __future__ import annotations
 
-import copy
 import json
 import math
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
+from document_mutations import paths, replaced
 
 from bench.cli.main import main
 from scenes.observations import check_against_lens, load_observations
@@ -33,27 +33,6 @@ DAMAGE: tuple[tuple[str, Callable[[bytes], bytes]], ...] = (
     ("nested past the bound", lambda text: b"[" * 100_000 + b"]" * 100_000),
     ("a list, not an object", lambda text: b"[" + text + b"]"),
 )
-
-
-def _leaves(value, path=()) -> Iterator[tuple]:
-    """Every path into ``value``: each object member, each list and each list item."""
-    if isinstance(value, dict):
-        for key, item in value.items():
-            yield (*path, key)
-            yield from _leaves(item, (*path, key))
-    elif isinstance(value, list):
-        for i, item in enumerate(value):
-            yield (*path, i)
-            yield from _leaves(item, (*path, i))
-
-
-def _replaced(data, path: tuple, value):
-    data = copy.deepcopy(data)
-    parent = data
-    for key in path[:-1]:
-        parent = parent[key]
-    parent[path[-1]] = value
-    return data
 
 
 def _refusal(read: Callable[[], object]) -> tuple[int, str]:
@@ -117,9 +96,9 @@ def test_every_field_of_every_format_meets_every_hostile_value(
     target = tmp_path / shipped.name
     assert answer(shipped, capsys)[0] == 0  # the shipped file itself is accepted
     wrong, tried = [], 0
-    for path in _leaves(base):
+    for path in paths(base):
         for value in HOSTILE_VALUES:
-            target.write_text(json.dumps(_replaced(base, path, value)))
+            target.write_text(json.dumps(replaced(base, path, value)))
             code, err = answer(target, capsys)
             tried += 1
             nonfinite = isinstance(value, float) and not math.isfinite(value)

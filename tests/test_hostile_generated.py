@@ -13,7 +13,6 @@ format and by a value in :data:`VALUES` or :data:`DAMAGE` for a new kind of dama
 
 from __future__ import annotations
 
-import copy
 import json
 import math
 from collections.abc import Callable, Iterator
@@ -24,6 +23,7 @@ import numpy as np
 import pandas as pd
 import pytest
 import yaml
+from document_mutations import paths, replaced
 from fake_dataset import SAMPLES, make_dataset
 from test_calibration_import import basalt_calib, basalt_entry, kalibr_camchain
 from test_lens_models import TUM_KB4
@@ -202,25 +202,6 @@ FORMATS = (
 MEMBERS = 4
 
 
-def _leaves(value, path=()) -> Iterator[tuple]:
-    """Paths into a JSON/YAML document: the first :data:`MEMBERS` members or items of each
-    object and list, at every depth."""
-    if isinstance(value, dict | list):
-        members = value.items() if isinstance(value, dict) else enumerate(value)
-        for key, item in list(members)[:MEMBERS]:
-            yield (*path, key)
-            yield from _leaves(item, (*path, key))
-
-
-def _set(document, path: tuple, value):
-    document = copy.deepcopy(document)
-    parent = document
-    for key in path[:-1]:
-        parent = parent[key]
-    parent[path[-1]] = value
-    return document
-
-
 def _document_variants(
     path: Path, kind: str, unread: tuple[tuple, ...]
 ) -> Iterator[tuple[str, bytes, bool]]:
@@ -234,15 +215,16 @@ def _document_variants(
             return yaml.safe_dump(doc).encode()
         return json.dumps(doc).encode()  # NaN and Infinity as Python writes them
 
-    for where in _leaves(document):
+    for where in paths(document, MEMBERS):
         old = _get(document, where)
         for value in VALUES:
             nonfinite = isinstance(value, float) and not math.isfinite(value)
             numeric = isinstance(old, int | float) and not isinstance(old, bool)
             numeric = numeric and not any(where[: len(u)] == u for u in unread)
-            yield f"{where} = {value!r}", dump(_set(document, where, value)), nonfinite and numeric
+            variant = dump(replaced(document, where, value))
+            yield f"{where} = {value!r}", variant, nonfinite and numeric
         if isinstance(old, dict):
-            yield f"{where} + unknown", dump(_set(document, (*where, "zz_unknown"), 1)), False
+            yield f"{where} + unknown", dump(replaced(document, (*where, "zz_unknown"), 1)), False
     if isinstance(document, dict):
         yield "unknown top-level member", dump({**document, "zz_unknown": 1}), False
 
@@ -422,7 +404,7 @@ def test_what_the_field_tier_found_stays_refused(
     good, argv, watched = fmt.make(folder, dataset)
     text = good.read_text()
     document = yaml.safe_load(text) if fmt.kind == "yaml" else json.loads(text)
-    good.write_text(json.dumps(_set(document, where, value)))
+    good.write_text(json.dumps(replaced(document, where, value)))
     if fmt.rehash is not None:
         fmt.rehash(good, watched)
     before = _files(watched)
