@@ -132,6 +132,7 @@ def _check_the_band(out, sweep, sweeps: pd.DataFrame, pipelines: int) -> None:
 
 
 @pytest.mark.slow
+@pytest.mark.usefixtures("figures_not_drawn")
 def test_the_sweeps_use_the_datasets_camera_unless_told(rendered_pair, tmp_path):
     import pytest
 
@@ -323,6 +324,7 @@ def test_the_sweeps_refuse_a_family_a_backend_cannot_detect():
 
 
 @pytest.mark.slow
+@pytest.mark.usefixtures("figures_not_drawn")
 def test_a_peer_runs_in_every_part_of_compare(rendered_pair, tmp_path):
     from bench.evaluate.compare import run_compare
     from bench.evaluate.sweep_config import QUICK_SWEEP
@@ -409,6 +411,7 @@ def _refusing(monkeypatch, refused: str) -> None:
 
 
 @pytest.mark.slow
+@pytest.mark.usefixtures("figures_not_drawn")
 def test_score_and_compare_report_a_pipeline_that_refuses_every_sample(
     rendered_pair, tmp_path, monkeypatch, capsys
 ):

@@ -121,6 +121,7 @@ def _cut(sample_video, tmp_path, frames) -> tuple:
 
 
 @pytest.mark.slow
+@pytest.mark.usefixtures("figures_not_drawn")
 def test_a_video_that_starts_in_contact_is_refused(sample_video, tmp_path, capsys) -> None:
     labels = pd.read_parquet(sample_video / "labels.parquet")
     deflection = labels.pivot(index="frame", columns="whisker", values="deflection_mm").to_numpy()
@@ -141,6 +142,7 @@ def test_a_video_that_starts_in_contact_is_refused(sample_video, tmp_path, capsy
 
 
 @pytest.mark.slow
+@pytest.mark.usefixtures("figures_not_drawn")
 def test_a_camera_file_of_another_size_is_refused(sample_video, tmp_path, capsys) -> None:
     from scenes.profile import load_profile
 
@@ -156,6 +158,7 @@ def test_a_camera_file_of_another_size_is_refused(sample_video, tmp_path, capsys
 
 
 @pytest.mark.slow
+@pytest.mark.usefixtures("figures_not_drawn")
 def test_a_marker_never_seen_is_reported(sample_video, tmp_path, capsys) -> None:
     """Black out whisker 0's marker in every frame: the estimate goes on and says so."""
     import itertools
@@ -184,6 +187,7 @@ def test_a_marker_never_seen_is_reported(sample_video, tmp_path, capsys) -> None
 
 
 @pytest.mark.slow
+@pytest.mark.usefixtures("figures_not_drawn")
 def test_score_flags_a_sample_without_no_contact_frames(sample_video, tmp_path) -> None:
     """A sample cut to start while a whisker is pushed is refused and reported, not scored."""
     import shutil

@@ -22,6 +22,8 @@ from bench.cli.main import main
 from renderers.variant import gpu_present
 from scenes.profile import CameraProfile
 
+pytestmark = pytest.mark.usefixtures("figures_not_drawn")  # answers, not figures
+
 PROFILE = CameraProfile().to_json()
 
 

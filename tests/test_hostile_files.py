@@ -22,6 +22,8 @@ from bench.cli.main import main
 from scenes.observations import check_against_lens, load_observations
 from scenes.profile import load_profile
 
+pytestmark = pytest.mark.usefixtures("figures_not_drawn")  # answers, not figures
+
 ROOT = Path(__file__).resolve().parents[1]
 HOSTILE_VALUES = (math.nan, math.inf, -math.inf, -1, 0, 1e300, "x", "", None, [], {}, True)
 #: Whole-file damage: (what, bytes from the file's own text).

@@ -33,6 +33,8 @@ from bench.common.manifest import sha256
 from bench.dataset.loader import open_dataset
 from scenes.tables import CORNER_COLUMNS
 
+pytestmark = pytest.mark.usefixtures("figures_not_drawn")  # answers, not figures
+
 LONG, SHORT = SAMPLES
 #: Values a leaf or a column is given in turn.
 VALUES = (math.nan, math.inf, -math.inf, -1, 0, 1e300, 10**30, "x", "", None, [], {}, True)

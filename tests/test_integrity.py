@@ -19,6 +19,8 @@ from bench.common.manifest import sha256
 from bench.dataset.verify import DatasetIntegrityError, verify_dataset
 from pipeline.presets import PRESETS
 
+pytestmark = pytest.mark.usefixtures("figures_not_drawn")  # answers, not figures
+
 BRANCH = "soft-intermediate-100-outdoor-lab"
 TWIN = "soft-intermediate-none-outdoor-lab"
 #: The id of another (killed) run, in its temporary files' names.

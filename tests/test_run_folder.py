@@ -29,6 +29,8 @@ from bench.common.manifest import sha256
 from bench.common.run_folder import LOCK, open_folder, read_holder
 from bench.common.units import DAMAGED, DONE, MISSING, write_unit
 
+pytestmark = pytest.mark.usefixtures("figures_not_drawn")  # answers, not figures
+
 ROOT = Path(__file__).resolve().parents[1]
 OTHER_RUN = "0123456789ab"  # another run's id, in its temporary files' names
 HOLD = """
