@@ -28,32 +28,52 @@ def pair_config():
     )
 
 
+def built_once(tmp_path_factory, worker_id: str, name: str, build):
+    """The folder ``build(folder)`` writes, built once per test run: under xdist the first
+    worker to ask builds it in the run's folder shared by all workers, under a lock; the others
+    wait and reuse it. Callers that write into it take a copy."""
+    import fcntl
+
+    if worker_id == "master":  # no xdist: nothing to share
+        folder = tmp_path_factory.mktemp(name) / "out"
+        build(folder)
+        return folder
+    shared = tmp_path_factory.getbasetemp().parent / name  # this run's, all workers'
+    shared.mkdir(exist_ok=True)
+    with open(shared / "lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not (shared / "done").exists():
+            build(shared / "out")
+            (shared / "done").touch()
+    return shared / "out"
+
+
 @pytest.fixture(scope="session")
 def rendered_pair(tmp_path_factory, variant, pair_config, worker_id):
-    """The dataset of :func:`pair_config`, rendered once per run (about 15 s): under xdist the
-    first worker to ask renders it into the run's shared folder, under a lock, and every worker
-    takes its own copy (tests write scores into it)."""
+    """The dataset of :func:`pair_config`, rendered once per run (about 15 s); each worker
+    takes its own copy, since tests write scores into it."""
     if variant.startswith("scalar"):
         pytest.skip("frame rendering needs a JIT variant")
-    import fcntl
     import shutil
 
     from bench.dataset.generate import run_dataset
 
-    out = tmp_path_factory.mktemp("pair")
-    if worker_id == "master":  # no xdist: nothing to share
+    def render(out):
         run_dataset(pair_config, out, variant=variant, progress=False)
-    else:
-        shared = tmp_path_factory.getbasetemp().parent / "rendered-pair"  # this run's, all workers'
-        shared.mkdir(exist_ok=True)
-        with open(shared / "lock", "w") as lock:
-            fcntl.flock(lock, fcntl.LOCK_EX)
-            if not (shared / "done").exists():
-                run_dataset(pair_config, shared / "data", variant=variant, progress=False)
-                (shared / "done").touch()
-        shutil.copytree(shared / "data", out, dirs_exist_ok=True)
+
+    out = tmp_path_factory.mktemp("pair") / "data"
+    shutil.copytree(built_once(tmp_path_factory, worker_id, "rendered-pair", render), out)
     assert (out / pair_config.samples()[1].sample_id).name == "soft-intermediate-100-outdoor-lab"
     return out
+
+
+@pytest.fixture(scope="session")
+def clean_quick_study(tmp_path_factory, worker_id):
+    """:data:`quick_study.QUICK_STUDY` run once, uninterrupted, for the whole run: the
+    reference of the tests that interrupt it; read, never written."""
+    from quick_study import run_quick_study
+
+    return built_once(tmp_path_factory, worker_id, "clean-quick-study", run_quick_study)
 
 
 @pytest.fixture

@@ -13,16 +13,13 @@ import time
 from pathlib import Path
 
 import pytest
-
-ROOT = Path(__file__).resolve().parents[1]
+from quick_study import QUICK_STUDY, ROOT, run_quick_study
 
 pytestmark = [
     pytest.mark.slow,
     pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs Linux /proc"),
 ]
 
-#: The smallest multi-worker run that lasts a few seconds after its first cell is written.
-COMMAND = ("detectability", "--quick", "--images", "10", "--workers", "2")
 #: Outputs that must be byte-identical; manifest.json differs by its timings and is left out.
 TABLES = ("*.csv", "*.parquet", "config.json", "cells/*.parquet")
 
@@ -65,17 +62,6 @@ def _cmdline(pid: int) -> str:
         return ""
 
 
-def _run(out: Path) -> None:
-    result = subprocess.run(
-        [sys.executable, "-m", "bench.cli", *COMMAND, "--out", str(out)],
-        cwd=ROOT,
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
-    assert result.returncode == 0, result.stderr[-2000:]
-
-
 def _tables(out: Path) -> dict[str, bytes]:
     return {
         str(path.relative_to(out)): path.read_bytes()
@@ -90,13 +76,12 @@ def _finished_cells(folder: Path) -> list[Path]:
     return [p for p in folder.glob("cells/*.parquet") if not p.name.startswith(".")]
 
 
-def test_killed_parent_takes_its_workers_and_the_rerun_is_identical(tmp_path):
-    clean, killed = tmp_path / "clean", tmp_path / "killed"
-    _run(clean)
+def test_killed_parent_takes_its_workers_and_the_rerun_is_identical(clean_quick_study, tmp_path):
+    clean, killed = clean_quick_study, tmp_path / "killed"
 
     log = (tmp_path / "killed.log").open("w")
     parent = subprocess.Popen(
-        [sys.executable, "-m", "bench.cli", *COMMAND, "--out", str(killed)],
+        [sys.executable, "-m", "bench.cli", *QUICK_STUDY, "--out", str(killed)],
         cwd=ROOT,
         stdout=log,
         stderr=subprocess.STDOUT,
@@ -131,7 +116,7 @@ def test_killed_parent_takes_its_workers_and_the_rerun_is_identical(tmp_path):
                 os.kill(pid, signal.SIGKILL)
 
     kept = {path: path.stat().st_mtime_ns for path in _finished_cells(killed)}
-    _run(killed)
+    run_quick_study(killed)
 
     expected, got = _tables(clean), _tables(killed)
     assert got.keys() == expected.keys()

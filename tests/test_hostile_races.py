@@ -20,7 +20,8 @@ from pathlib import Path
 
 import pytest
 from fake_dataset import SAMPLES, make_dataset
-from test_faults import _alive, _descendants, _finished_cells, _run, _tables
+from quick_study import QUICK_STUDY, run_quick_study
+from test_faults import _alive, _descendants, _finished_cells, _tables
 
 from bench.common.manifest import sha256
 
@@ -98,20 +99,11 @@ def test_two_studies_started_together_on_one_out(tmp_path, variant):
 
 # --- signals ------------------------------------------------------------------------------
 
-COMMAND = ("detectability", "--quick", "--images", "10", "--workers", "2")
-
 
 def _hear_ctrl_c() -> None:
     """Undo an ignored SIGINT inherited from a background shell (``cmd &``), under which
     Python installs no handler and Ctrl-C could never be tested."""
     signal.signal(signal.SIGINT, signal.SIG_DFL)
-
-
-@pytest.fixture(scope="module")
-def clean(tmp_path_factory) -> Path:
-    out = tmp_path_factory.mktemp("clean") / "run"
-    _run(out)
-    return out
 
 
 @pytest.mark.slow  # a real study, interrupted, and its rerun
@@ -122,13 +114,13 @@ def clean(tmp_path_factory) -> Path:
     ids=["ctrl-c to the group", "kill to the parent"],
 )
 def test_an_interrupted_study_leaves_no_process_and_resumes_to_the_same_bytes(
-    name, group, expected, clean, tmp_path
+    name, group, expected, clean_quick_study, tmp_path
 ):
     out = tmp_path / "run"
     log = tmp_path / "log"
     with log.open("w") as sink:
         parent = subprocess.Popen(
-            [sys.executable, "-m", "bench.cli", *COMMAND, "--out", str(out)],
+            [sys.executable, "-m", "bench.cli", *QUICK_STUDY, "--out", str(out)],
             cwd=ROOT,
             stdout=sink,
             stderr=subprocess.STDOUT,
@@ -162,8 +154,8 @@ def test_an_interrupted_study_leaves_no_process_and_resumes_to_the_same_bytes(
         for pid, start in tree.items():  # a failed test leaves nothing running
             if _alive(pid, start):
                 os.kill(pid, signal.SIGKILL)
-    _run(out)
-    assert _tables(out) == _tables(clean)
+    run_quick_study(out)
+    assert _tables(out) == _tables(clean_quick_study)
     assert {p.relative_to(out) for p in out.rglob("*")} == {
-        p.relative_to(clean) for p in clean.rglob("*")
+        p.relative_to(clean_quick_study) for p in clean_quick_study.rglob("*")
     }
