@@ -5,7 +5,8 @@ and the whole file damaged (emptied, cut short, binary, not UTF-8, nested past t
 Every variant must be answered as input: accepted, or refused in one line naming the field
 (exit code 2 at the command line); never an internal error, never a traceback, and a value that
 is not a finite number is never accepted where a number stands. The suite grows by a line in
-:data:`KINDS` for each new input format, and by a value in :data:`HOSTILE_VALUES`.
+:data:`KINDS` for each new input format, and by a value in
+``document_mutations.HOSTILE_VALUES``.
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 import pytest
-from document_mutations import paths, replaced
+from document_mutations import HOSTILE_VALUES, paths, replaced, wrong_answer
 
 from bench.cli.main import main
 from scenes.observations import check_against_lens, load_observations
@@ -25,7 +26,6 @@ from scenes.profile import load_profile
 pytestmark = pytest.mark.usefixtures("figures_not_drawn")  # answers, not figures
 
 ROOT = Path(__file__).resolve().parents[1]
-HOSTILE_VALUES = (math.nan, math.inf, -math.inf, -1, 0, 1e300, "x", "", None, [], {}, True)
 #: Whole-file damage: (what, bytes from the file's own text).
 DAMAGE: tuple[tuple[str, Callable[[bytes], bytes]], ...] = (
     ("emptied", lambda text: b""),
@@ -78,18 +78,6 @@ KINDS = (
 WHOLE_FILE = (*KINDS, ("camera show", ROOT / "scenes/profiles/prototype.json", _show_answer))
 
 
-def _wrong(code: int, err: str, nonfinite_number: bool) -> str | None:
-    if code not in (0, 2):
-        return f"exit code {code}"
-    if "Traceback" in err or "internal error" in err:
-        return "an internal error"
-    if code == 2 and len(err.strip().splitlines()) != 1:
-        return "a refusal not in one line"
-    if code == 0 and nonfinite_number:
-        return "accepted a value that is not a finite number"
-    return None
-
-
 @pytest.mark.parametrize(("kind", "shipped", "answer"), KINDS, ids=[k[0] for k in KINDS])
 def test_every_field_of_every_format_meets_every_hostile_value(
     kind, shipped, answer, tmp_path, capsys
@@ -104,7 +92,7 @@ def test_every_field_of_every_format_meets_every_hostile_value(
             code, err = answer(target, capsys)
             tried += 1
             nonfinite = isinstance(value, float) and not math.isfinite(value)
-            why = _wrong(code, err, nonfinite)
+            why = wrong_answer(code, err, nonfinite)
             if why:
                 wrong.append(f"{'.'.join(map(str, path))} = {value!r}: {why}: {err.strip()[:200]}")
     assert tried > 300
@@ -120,4 +108,4 @@ def test_a_damaged_file_is_refused_in_one_line(
     target.write_bytes(damage(shipped.read_bytes()))
     code, err = answer(target, capsys)
     assert code == 2, (what, err)
-    assert _wrong(code, err, False) is None, err
+    assert wrong_answer(code, err, False) is None, err

@@ -8,7 +8,8 @@ Every variant must be answered as input: refused in one line naming the file or 
 code 2, nothing written; or accepted, where the damage left a valid file (a name changed to
 another name); never an internal error or a traceback, and a value that is not a finite number
 is never accepted where a number stands. The suite grows by a line in :data:`FORMATS` for a new
-format and by a value in :data:`VALUES` or :data:`DAMAGE` for a new kind of damage.
+format, by a value in ``document_mutations.HOSTILE_VALUES`` or by a line in :data:`DAMAGE` for a
+new kind of damage.
 """
 
 from __future__ import annotations
@@ -23,7 +24,7 @@ import numpy as np
 import pandas as pd
 import pytest
 import yaml
-from document_mutations import paths, replaced
+from document_mutations import HOSTILE_VALUES, paths, replaced, wrong_answer
 from fake_dataset import SAMPLES, make_dataset
 from test_calibration_import import basalt_calib, basalt_entry, kalibr_camchain
 from test_lens_models import TUM_KB4
@@ -36,8 +37,6 @@ from scenes.tables import CORNER_COLUMNS
 pytestmark = pytest.mark.usefixtures("figures_not_drawn")  # answers, not figures
 
 LONG, SHORT = SAMPLES
-#: Values a leaf or a column is given in turn.
-VALUES = (math.nan, math.inf, -math.inf, -1, 0, 1e300, 10**30, "x", "", None, [], {}, True)
 #: Whole-file damage: (name, new bytes from the good file's bytes).
 DAMAGE: tuple[tuple[str, Callable[[bytes], bytes]], ...] = (
     ("emptied", lambda data: b""),
@@ -219,7 +218,7 @@ def _document_variants(
 
     for where in paths(document, MEMBERS):
         old = _get(document, where)
-        for value in VALUES:
+        for value in HOSTILE_VALUES:
             nonfinite = isinstance(value, float) and not math.isfinite(value)
             numeric = isinstance(old, int | float) and not isinstance(old, bool)
             numeric = numeric and not any(where[: len(u)] == u for u in unread)
@@ -252,7 +251,7 @@ def _table_variants(path: Path, kind: str) -> Iterator[tuple[str, bytes, bool]]:
 
     for column in table.columns:
         numeric = pd.api.types.is_numeric_dtype(table[column])
-        for value in VALUES:
+        for value in HOSTILE_VALUES:
             if isinstance(value, list | dict):
                 continue  # a cell of a table holds no list
             t = table.astype({column: object})
@@ -286,20 +285,6 @@ def _variants(path: Path, fmt: Format, fields: bool) -> Iterator[tuple[str, byte
 
 def _files(folder: Path) -> dict[str, bytes]:
     return {str(p): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
-
-
-def _wrong(code: int, err: str, nonfinite: bool, written: bool, out_given: bool) -> str | None:
-    """What is wrong with an answer, or None."""
-    lines = err.strip().splitlines()
-    if "Traceback" in err or "internal error" in err:
-        return "an internal error"
-    if code == 2:
-        if len(lines) != 1 or not lines[0].startswith("whiskerbench "):
-            return f"a refusal in {len(lines)} lines"
-        return "refused, but wrote" if written else None
-    if code == 0:
-        return "accepted a value that is not a finite number" if nonfinite else None
-    return f"exit code {code}"
 
 
 @pytest.fixture(scope="module")
@@ -353,7 +338,7 @@ def _answer_every_variant(
         tried += 1
         if code == 0:
             accepted.append(what)
-        why = _wrong(code, err, nonfinite, written, out is not None)
+        why = wrong_answer(code, err, nonfinite, written, prefix="whiskerbench ")
         if why:
             wrong.append(f"{what}: {why}: exit {code}: {err.strip()[:300]}")
         good.write_bytes(original)
