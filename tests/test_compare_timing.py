@@ -197,6 +197,7 @@ def test_median_and_spread_are_consistent():
     assert all(np.isnan(v) for v in untimed.values())
 
 
+@pytest.mark.slow
 def test_real_timing_on_the_datasets_frames(tmp_path):
     """The real clock on the fake dataset's frames: figures in order, no value asserted."""
     from fake_dataset import make_dataset
@@ -276,6 +277,7 @@ def test_an_untimed_method_is_never_a_rival_for_the_speed_lead():
     assert fps["spread_rivals"] == ""
 
 
+@pytest.mark.slow
 def test_a_pipeline_without_a_speed_is_off_the_front_and_named(tmp_path, monkeypatch):
     import matplotlib.pyplot as plt
 

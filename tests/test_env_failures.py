@@ -151,6 +151,7 @@ def test_non_utf8_arguments(work, capsys):
     one_line(argv, 2, r"argument: '\\udcff\.json': not valid UTF-8 text", capsys, work)
 
 
+@pytest.mark.slow
 def test_non_utf8_name_inside_a_folder(work):
     """OpenCV crashes (SIGSEGV) on such a path: run in a subprocess so a crash fails the test
     instead of ending the session."""
@@ -241,6 +242,7 @@ def _cli(argv: list, cwd: Path, **kwargs) -> subprocess.CompletedProcess:
     )
 
 
+@pytest.mark.slow
 def test_started_with_stdout_closed(work):
     """``whiskerbench camera show ideal >&-``: nothing to print to, no traceback."""
     proc = subprocess.run(
@@ -255,6 +257,7 @@ def test_started_with_stdout_closed(work):
     assert proc.returncode == 0 and proc.stderr == "", proc.stderr
 
 
+@pytest.mark.slow
 def test_reader_gone_early(work):
     """``camera project ... | head -1``: the reader closes the pipe; a quiet exit 141."""
     proc = subprocess.Popen(

@@ -73,6 +73,7 @@ def test_the_palette_is_okabe_ito_and_wrapped_series_change_marker():
     assert titled("T") == "T" and titled("T", ["--quick"]) == "T\noptions: --quick"
 
 
+@pytest.mark.slow
 def test_study_figures_name_their_options(saved, tmp_path):
     from bench.study.config import StudyConfig, nondefault_options
     from bench.study.plots import plot_heatmap, plot_max_phi, plot_pose_error
@@ -93,6 +94,7 @@ def test_study_figures_name_their_options(saved, tmp_path):
         assert_legends_clear_of_data(fig)
 
 
+@pytest.mark.slow
 def test_comparison_figures_name_the_dataset_and_options(saved, tmp_path):
     from bench.evaluate.pareto import plot_pareto
     from bench.evaluate.sweep_config import QUICK_SWEEP, SweepConfig, sweep_options
@@ -140,6 +142,7 @@ def test_comparison_figures_name_the_dataset_and_options(saved, tmp_path):
     assert first.get_color() == ninth.get_color() and first.get_marker() != ninth.get_marker()
 
 
+@pytest.mark.slow
 def test_point_names_cover_no_other_name_and_coinciding_points_share_one(saved, tmp_path):
     """The comparison's crowd: four pipelines at one accuracy within a few frames/s, two on the
     very same spot (a preset and its alias), one at the left edge with a long name."""
@@ -227,6 +230,7 @@ def test_ladder_chart_names_its_options(saved, tmp_path):
     assert_legends_clear_of_data(saved[-1])
 
 
+@pytest.mark.slow
 def test_ladder_rung_names_stay_in_their_panel_clear_of_each_other_and_the_star(saved, tmp_path):
     """The ladder's crowd: camera stages at nearly one cost on the panel's floor, beside the
     reference star, and one far rung that stretches the axes."""

@@ -78,6 +78,7 @@ KINDS = (
 WHOLE_FILE = (*KINDS, ("camera show", ROOT / "scenes/profiles/prototype.json", _show_answer))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("kind", "shipped", "answer"), KINDS, ids=[k[0] for k in KINDS])
 def test_every_field_of_every_format_meets_every_hostile_value(
     kind, shipped, answer, tmp_path, capsys

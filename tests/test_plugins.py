@@ -201,6 +201,7 @@ def test_an_unresolvable_plugin_is_refused_before_any_work(fake, tmp_path, capsy
     assert not out.exists() and not (fake / "scores").exists()
 
 
+@pytest.mark.slow
 def test_a_branch_finder_is_scored_per_sample(fake, tmp_path, capsys):
     out = tmp_path / "gap"
     argv = ["score", str(fake), "--pipeline", f"branch-plugin:{SAMPLE}:gap_six", "--out", str(out)]
@@ -213,6 +214,7 @@ def test_a_branch_finder_is_scored_per_sample(fake, tmp_path, capsys):
     assert manifest["config"]["branch_plugin"] == f"branch-plugin:{SAMPLE}:gap_six"
 
 
+@pytest.mark.slow
 def test_a_branch_finder_that_fails(fake, tmp_path, capsys):
     argv = ["score", str(fake), "--pipeline", f"branch-plugin:{SAMPLE}:bad_gap", "--out",
             str(tmp_path / "bad")]  # fmt: skip

@@ -35,6 +35,7 @@ def test_the_set_is_photographs_with_their_sources():
     assert sum(f.stat().st_size for f in PHOTOS_DIR.iterdir()) < 3_000_000
 
 
+@pytest.mark.slow
 @needs_peers
 def test_the_consensus_is_what_the_detectors_agree_on():
     table = read_consensus()

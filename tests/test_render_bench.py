@@ -12,6 +12,7 @@ import bench.benchmarks.cycles_scene as cycles_scene
 from bench.benchmarks.render import ALPHA_DEG, LIGHTING, PHI_DEG, SIZE_MM, bench_render
 
 
+@pytest.mark.slow
 def test_project_side_without_bpy(tmp_path, capsys, monkeypatch):
     monkeypatch.setattr(cycles_scene, "import_bpy", lambda: None)
     out = tmp_path / "run"

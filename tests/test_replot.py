@@ -35,6 +35,7 @@ def _files(folder: Path) -> dict[str, str]:
     return {p.relative_to(folder).as_posix(): _digest(p) for p in paths}
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("name", "manifest", "figures", "title_says"),
     [
@@ -121,6 +122,7 @@ def _damage(folder: Path, name: str, text: str) -> None:
     (folder / "manifest.json").write_text(json.dumps(record))
 
 
+@pytest.mark.slow
 def test_a_damaged_table_is_refused_and_no_folder_named_is_touched(tmp_path, capsys):
     good, bad = _copy("ladder", tmp_path), _copy("compare/default", tmp_path)
     (good / "ladder.png").write_bytes(b"stale")  # would be redrawn, were bad not refused

@@ -47,6 +47,7 @@ def _samples(out: Path) -> pd.DataFrame:
     return pd.read_csv(out / "samples.csv").set_index("sample_id")
 
 
+@pytest.mark.slow
 def test_exact_corners_score_perfectly_and_without_timing_as_accuracy_only(
     fake, truth, tmp_path, capsys
 ) -> None:

@@ -108,6 +108,7 @@ def test_a_peer_that_is_no_scheduler_is_refused(reply, tmp_path, capsys, monkeyp
     assert "no Dask scheduler answers" in line and elapsed < CONNECT_TIMEOUT_S + 2
 
 
+@pytest.mark.slow
 def test_nothing_follows_the_refusal_at_exit(tmp_path):
     """The whole stderr of the process is the one line: a half-made Dask client used to wait
     at exit to close and then print a traceback ("Exception ignored in Client.__del__")."""
