@@ -3,6 +3,15 @@
 import pytest
 
 
+@pytest.hookimpl(trylast=True)  # after pytest's own reordering by fixture scope
+def pytest_collection_modifyitems(items):
+    """Tests marked ``start_early`` first, in their order; the rest as collected. xdist's
+    ``load`` gives each worker a first chunk of the collection, then the rest in chunks to
+    whichever worker is free: a test of minutes collected late (the README's quickstart, at
+    "r") could be left running on one worker after the other has finished everything else."""
+    items.sort(key=lambda item: item.get_closest_marker("start_early") is None)
+
+
 @pytest.fixture(scope="session")
 def variant():
     from renderers.variant import select_variant

@@ -124,6 +124,7 @@ def test_config_refuses(change, field):
         LadderConfig(**change)
 
 
+@pytest.mark.start_early
 @pytest.mark.slow
 def test_quick_ladder_end_to_end_and_resumes(tmp_path):
     from bench.ladder.run import run_ladder

@@ -286,6 +286,7 @@ def _exact_results(dataset: Path, path: Path) -> Path:
     return path
 
 
+@pytest.mark.start_early
 @pytest.mark.slow
 def test_compare_runs_plugins_results_and_branch_finders_beside_the_pipelines(
     rendered_pair, tmp_path

@@ -101,6 +101,7 @@ def test_quickstart_is_short_timed_and_parses():
         assert OUTPUT.search(comment), f"no output named in: {line}"
 
 
+@pytest.mark.start_early
 @pytest.mark.slow
 def test_quickstart_runs_verbatim(tmp_path):
     """Renders a quick study, a quick dataset and scores and compares it (minutes)."""

@@ -42,6 +42,7 @@ def test_frame_count_follows_the_grid_and_the_step():
     assert default_dataset_frames(stepped) == -(-frames // 3)
 
 
+@pytest.mark.start_early
 @pytest.mark.slow
 def test_scale_rows_rates_and_identical_outputs(variant, tmp_path, pair_config, capsys):
     if variant.startswith("scalar"):
