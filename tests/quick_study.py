@@ -13,10 +13,15 @@ ROOT = Path(__file__).resolve().parents[1]
 QUICK_STUDY = ("detectability", "--quick", "--images", "10", "--workers", "2")
 
 
+def quick_study_argv(out: Path) -> list[str]:
+    """The command line of :data:`QUICK_STUDY` into ``out``, run from :data:`ROOT`."""
+    return [sys.executable, "-m", "bench.cli", *QUICK_STUDY, "--out", str(out)]
+
+
 def run_quick_study(out: Path) -> None:
     """:data:`QUICK_STUDY` into ``out`` as a user runs it: a process of its own."""
     result = subprocess.run(
-        [sys.executable, "-m", "bench.cli", *QUICK_STUDY, "--out", str(out)],
+        quick_study_argv(out),
         cwd=ROOT,
         capture_output=True,
         text=True,

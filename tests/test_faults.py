@@ -8,12 +8,11 @@ Processes are found through /proc (Linux), so no extra dependency is needed.
 import os
 import signal
 import subprocess
-import sys
 import time
 from pathlib import Path
 
 import pytest
-from quick_study import QUICK_STUDY, ROOT, run_quick_study
+from quick_study import ROOT, quick_study_argv, run_quick_study
 
 pytestmark = [
     pytest.mark.slow,
@@ -81,7 +80,7 @@ def test_killed_parent_takes_its_workers_and_the_rerun_is_identical(clean_quick_
 
     log = (tmp_path / "killed.log").open("w")
     parent = subprocess.Popen(
-        [sys.executable, "-m", "bench.cli", *QUICK_STUDY, "--out", str(killed)],
+        quick_study_argv(killed),
         cwd=ROOT,
         stdout=log,
         stderr=subprocess.STDOUT,

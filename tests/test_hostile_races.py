@@ -20,7 +20,7 @@ from pathlib import Path
 
 import pytest
 from fake_dataset import SAMPLES, make_dataset
-from quick_study import QUICK_STUDY, run_quick_study
+from quick_study import quick_study_argv, run_quick_study
 from test_faults import _alive, _descendants, _finished_cells, _tables
 
 from bench.common.manifest import sha256
@@ -120,7 +120,7 @@ def test_an_interrupted_study_leaves_no_process_and_resumes_to_the_same_bytes(
     log = tmp_path / "log"
     with log.open("w") as sink:
         parent = subprocess.Popen(
-            [sys.executable, "-m", "bench.cli", *QUICK_STUDY, "--out", str(out)],
+            quick_study_argv(out),
             cwd=ROOT,
             stdout=sink,
             stderr=subprocess.STDOUT,
