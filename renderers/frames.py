@@ -389,6 +389,8 @@ class FrameRecorder:
         renderer = self.renderer
         self.twin = TwinRecorder(profile, renderer.region, renderer.band, self.exposure, noise_seed)
         self.render_s = 0.0
+        self.frames_reused = 0  # frames that took the previous frame's optical image
+        self._last: tuple[int, np.ndarray] | None = None  # (frame, its optical image)
 
     @property
     def optics_s(self) -> float:
@@ -410,6 +412,23 @@ class FrameRecorder:
         self.render_s += time.perf_counter() - t0
         return radiance
 
+    def still_as(self, f: int, g: int) -> bool:
+        """Whether frames ``f`` and ``g`` show the same scene at every time sample (the array
+        at rest, a still lead-in): the same rays meet the same geometry, so the same radiance."""
+        k = self.renderer.sampling.subframes
+        return np.array_equal(self.angles_rad[f, :k], self.angles_rad[g, :k]) and np.array_equal(
+            self.offsets_mm[f], self.offsets_mm[g]
+        )
+
     def frame(self, f: int) -> np.ndarray:
-        """The camera's 8-bit grey frame ``f`` (H, W): black outside the rendered region."""
-        return self.twin.record(self.radiance(f))
+        """The camera's 8-bit grey frame ``f`` (H, W): black outside the rendered region.
+
+        A frame still as the one recorded before it reuses that frame's optical image (render
+        and optics are deterministic) and draws only its own sensor noise."""
+        if self._last is not None and self.still_as(f, self._last[0]):
+            self.frames_reused += 1
+            irradiance = self._last[1]
+        else:
+            irradiance = self.twin.optics(self.radiance(f))
+        self._last = (f, irradiance)
+        return self.twin.expose(irradiance)

@@ -90,3 +90,34 @@ def test_adaptive_is_off_by_default_and_leaves_the_settings_hash() -> None:
     assert not plain.sampling.adaptive and "adaptive" not in plain.to_json()["sampling"]
     fast = dataclasses.replace(plain, sampling=FrameSampling(adaptive=True))
     assert fast.settings_hash() != plain.settings_hash()
+
+
+@pytest.mark.slow
+def test_still_frames_reuse_the_optical_image_and_match_a_fresh_render(variant) -> None:
+    """A frame whose array and path equal the previous frame's (the still lead-in) is recorded
+    from that frame's optical image, and comes out byte for byte as rendering it again would."""
+    from bench.dataset.config import DatasetConfig
+    from bench.dataset.sample import sample_recorder, simulate_sample
+
+    if variant.startswith("scalar"):
+        pytest.skip("frame rendering needs a JIT variant")
+    config = DatasetConfig(
+        foliage=("soft",),
+        distances=("intermediate",),
+        branches=((0.0,),),
+        protocols=("outdoor",),
+        lightings=("lab",),
+        passes=1,
+        frames_step=6,
+        sampling=FrameSampling(marker_spp=1),
+    )
+    sample = config.samples()[0]
+    sim = simulate_sample(config, sample)
+    reusing, fresh = (sample_recorder(config, sample, sim) for _ in range(2))
+    still = [f for f in range(1, 5) if reusing.still_as(f, f - 1)]
+    assert still and not reusing.still_as(4, 3)  # a lead-in, then motion
+    for f in range(5):
+        expected = fresh.twin.record(fresh.radiance(f))
+        np.testing.assert_array_equal(reusing.frame(f), expected, err_msg=f"frame {f}")
+    assert reusing.frames_reused == len(still)
+    assert reusing.render_s < fresh.render_s

@@ -50,6 +50,7 @@ if TYPE_CHECKING:
 @dataclass(frozen=True)
 class SampleTiming:
     frames: int
+    frames_reused: int  # still frames recorded from the previous frame's optical image
     simulate_s: float
     render_s: float
     optics_s: float  # the twin's optical stages, once per frame
@@ -193,6 +194,7 @@ def run_sample(config: DatasetConfig, sample: SampleSpec, out_dir: Path) -> dict
 
     timing = SampleTiming(
         frames=n_written,
+        frames_reused=frames.frames_reused,
         simulate_s=t_sim - t_start,
         render_s=frames.render_s,
         optics_s=frames.optics_s,
