@@ -65,6 +65,7 @@ class ArrayScene:
             optimize=False,
         )
         self._params = mi.traverse(self.scene)
+        self._posed: np.ndarray | None = None  # the angles the scene holds (None: at rest)
 
     def posed_vertices(self, angles_rad: np.ndarray) -> dict[str, np.ndarray]:
         """The moving parts' vertices (V, 3) in the camera frame for deflections (n, 2)."""
@@ -82,7 +83,12 @@ class ArrayScene:
         }
 
     def set_angles(self, angles_rad: np.ndarray) -> None:
-        """Pose every whisker for deflection angles (n, 2) (scenes.array convention)."""
+        """Pose every whisker for deflection angles (n, 2) (scenes.array convention); the
+        same angles again leave the scene (and its acceleration structure) as it is."""
+        angles_rad = np.array(angles_rad, dtype=float)
+        if self._posed is not None and np.array_equal(angles_rad, self._posed):
+            return
+        self._posed = angles_rad
         for key, posed in self.posed_vertices(angles_rad).items():
             key = f"{key}.vertex_positions"
             self._params[key] = type(self._params[key])(posed.astype(np.float32).ravel())
