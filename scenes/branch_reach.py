@@ -33,9 +33,14 @@ def _touchable(
     return (dist <= BRANCH_RADIUS_MM + 0.5 * array.whisker_diameter_mm).any(axis=(1, 2))
 
 
+def _reach_limit_mm(array: ArraySpec, sweep_mm: float) -> int:
+    """A bound on |x| of any branch a rod can touch: the rods' reach, the sweep, the branch."""
+    return math.ceil(reach_z_mm(array) + sweep_mm + BRANCH_RADIUS_MM)
+
+
 def _reachable_ranges(distance: str, array: ArraySpec, sweep_mm: float) -> str:
     """The reachable branch positions at a distance as 'a..b' intervals (1 mm grid)."""
-    limit = math.ceil(reach_z_mm(array) + sweep_mm + BRANCH_RADIUS_MM)
+    limit = _reach_limit_mm(array, sweep_mm)
     grid = np.arange(-limit, limit + 1, dtype=float)
     ok = _touchable(grid, branch_z_mm(distance, array), array, sweep_mm)
     edges = np.flatnonzero(np.diff(np.concatenate([[False], ok, [False]]).astype(int)))
@@ -52,7 +57,8 @@ def branch_reach_error(
     xs = np.asarray(branches_mm, dtype=float)
     if xs.size == 0:
         return None
-    ok = _touchable(xs, z, array, sweep_mm)
+    ok = np.abs(xs) <= _reach_limit_mm(array, sweep_mm)  # no rod reaches beyond it
+    ok[ok] = _touchable(xs[ok], z, array, sweep_mm)
     if ok.all():
         return None
     bad = xs[np.argmin(ok)]

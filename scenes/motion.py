@@ -15,6 +15,7 @@ piecewise linear in time:
 from __future__ import annotations
 
 import math
+import numbers
 from dataclasses import dataclass
 
 import numpy as np
@@ -24,6 +25,11 @@ from scenes.validation import FieldError
 
 class MotionSpecError(FieldError):
     """An invalid motion parameter; ``field`` names it."""
+
+
+#: Whisking passes of one sample, at most: a bound for the arithmetic of the path (the memory
+#: and time limits of the command line name the far tighter one a machine sets).
+MAX_PASSES = 10**9
 
 
 @dataclass(frozen=True)
@@ -53,8 +59,11 @@ class MotionSpec:
                 raise MotionSpecError(name, f"must be a finite number >= 0, got {value}")
         if self.lead_in_s * self.fps < 1:
             raise MotionSpecError("lead_in_s", "must hold at least one frame (no-contact pose)")
-        if int(self.passes) != self.passes or self.passes < 1:
-            raise MotionSpecError("passes", f"must be an integer >= 1, got {self.passes}")
+        p = self.passes
+        whole = isinstance(p, numbers.Integral) or (isinstance(p, float) and p.is_integer())
+        if isinstance(p, bool) or not (whole and 1 <= p <= MAX_PASSES):
+            shown = str(p) if len(str(p)) <= 20 else f"an integer of {len(str(p))} digits"
+            raise MotionSpecError("passes", f"must be an integer 1..{MAX_PASSES}, got {shown}")
 
     def waypoints(self) -> tuple[np.ndarray, np.ndarray]:
         """(times_s (W,), offsets_mm (W, 2)): the corners of the piecewise-linear path."""

@@ -96,6 +96,7 @@ def fx(tmp_path_factory) -> Path:
 
 # (argv, regex the single stderr line must match: it names the option or the file)
 S = "detectability"
+BIG = "9" * 400  # an integer no float holds
 CASES: list[tuple[str, str]] = [
     # --- detectability: lists, numbers, names, files, outputs
     (f"{S} --sizes=", r"--sizes.*at least one"),
@@ -172,7 +173,7 @@ CASES: list[tuple[str, str]] = [
     ("bench pipeline --variant=nosuch", r"--variant.*invalid choice"),
     ("bench pipeline --out={fx}/afile", r"--out:.*is a file"),
     ("bench render --spp=0", r"--spp.*>= 1"),
-    ("bench render --spp=nan", r"--spp.*invalid int value"),
+    ("bench render --spp=nan", r"--spp.*invalid integer value"),
     ("bench render --spp=100000000", r"--spp.*GiB; limit \d+"),
     ("bench render --threads=0", r"--threads.*allowed range is 1\.\.\d+"),
     ("bench render --threads=100000", r"--threads.*allowed range is 1\.\.\d+"),
@@ -208,10 +209,24 @@ CASES: list[tuple[str, str]] = [
     ("dataset --branches=0+50,50+0", r"--branches.*twice"),
     ("dataset --branches=0+nan", r"--branches.*not finite"),
     ("dataset --branches=1e9", r"--branches.*out of reach"),
+    ("dataset --branches=1e308", r"--branches.*1e\+308 mm is out of reach"),  # no overflow
     ("dataset --protocol=", r"--protocol.*at least one"),
     ("dataset --lighting=sun,sun", r"--lighting.*twice"),
     ("dataset --frames-step=0", r"--frames-step.*>= 1"),
     ("dataset --mechanics=springy", r"--mechanics.*'springy'.*dynamic, quasi-static"),
+    # integers and numbers beyond floats (the limits weigh options in floats)
+    (f"dataset --workers={BIG}", r"--workers: an integer of 400 digits: at most 9007199254740992"),
+    (f"dataset --frames-step={BIG}", r"--frames-step: an integer of 400 digits"),
+    (f"dataset --spp={BIG}", r"--spp: an integer of 400 digits"),
+    (f"dataset --subframes=-{BIG}", r"--subframes: an integer of 400 digits"),
+    (f"{S} --spp={BIG}", r"--spp: an integer of 400 digits"),
+    (f"score {{fx}}/nodataset --workers={BIG}", r"--workers: an integer of 400 digits"),
+    (f"compare {{fx}}/nodataset --seeds={BIG}", r"--seeds: an integer of 400 digits"),
+    ("dataset --passes=2000000000", r"--passes: must be an integer 1\.\.1000000000"),
+    ("dataset --speed=1e-320", r"--speed: .*inf frames.*lowest allowed about 0\.0\d+"),
+    ("dataset --speed=1e-100", r"--speed: .*lowest allowed about 0\.0\d+"),
+    (f"dataset --camera={BIG}", r"--camera: 9{40}\.\.\.: File name too long"),
+    (f"{S} --camera={BIG}", r"--camera: 9{40}\.\.\.: File name too long"),
     ("dataset --foliage-detail=ultra", r"--foliage-detail.*'ultra'.*coarse, default, fine"),
     ("dataset --integrator=whitted", r"--integrator.*'whitted'"),
     ("dataset --integrator=path --path-depth=9", r"--path-depth.*1\.\.8"),
@@ -219,7 +234,7 @@ CASES: list[tuple[str, str]] = [
     ("dataset --speed=nan", r"--speed.*finite"),
     ("dataset --speed=1e-9", r"--speed.*GiB.*lowest allowed"),
     ("dataset --amplitude=1e9", r"--amplitude.*\(0, 1000\]"),
-    ("dataset --passes=0", r"--passes.*>= 1"),
+    ("dataset --passes=0", r"--passes.*1\.\.1000000000"),
     ("dataset --passes=1000000", r"--passes.*GiB.*limit about"),
     ("dataset --passes=800", r"--passes: 800: .*would take .*days.*limit \d+"),  # not --spp
     ("dataset --fps=1e9", r"--fps: 1e\+09: one frame lasts 1e-06 ms, shorter than the default"),

@@ -91,6 +91,22 @@ def seed(text: str) -> int:
     return value
 
 
+#: The largest integer option: every integer up to it is exact as a float, in which the limits
+#: (bench.cli.limits) weigh each option's cost.
+MAX_INTEGER = 2**53
+
+
+def integer(text: str) -> int:
+    """argparse type of the integer options (counts, sizes, indices): an integer of at most
+    :data:`MAX_INTEGER` in magnitude; each option's own range is checked after."""
+    value = int(text)  # ValueError: argparse says "invalid integer value"
+    if abs(value) > MAX_INTEGER:
+        digits = str(abs(value))
+        shown = digits if len(digits) <= 20 else f"an integer of {len(digits)} digits"
+        raise argparse.ArgumentTypeError(f"{shown}: at most {MAX_INTEGER} in magnitude")
+    return value
+
+
 #: The Linux ioctl reading a file's attribute flags, and its immutable and append-only flags.
 _FS_IOC_GETFLAGS, _FS_IMMUTABLE_FL, _FS_APPEND_FL = 0x80086601, 0x10, 0x20
 

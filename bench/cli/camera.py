@@ -11,7 +11,7 @@ import math
 import sys
 from pathlib import Path
 
-from bench.cli.args import check_out_file, float_list
+from bench.cli.args import check_out_file, float_list, integer
 from bench.cli.calibrate import add_calibrate_parser
 from bench.cli.limits import check_memory
 from bench.common.atomic import write_json
@@ -57,7 +57,9 @@ def add_camera_parser(subparsers, parser_class: type[argparse.ArgumentParser]) -
     imp = sub.add_parser("import", help="a profile JSON from a Kalibr/Basalt/OCamCalib/OpenCV file")
     imp.add_argument("file", metavar="FILE", help="the calibration file")
     imp.add_argument("--format", required=True, choices=FORMATS, help="the file's format")
-    imp.add_argument("--camera-index", type=int, default=0, help="camera in the file (default 0)")
+    imp.add_argument(
+        "--camera-index", type=integer, default=0, help="camera in the file (default 0)"
+    )
     imp.add_argument(
         "--theta-max-deg",
         type=float,

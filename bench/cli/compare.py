@@ -10,7 +10,7 @@ import sys
 from pathlib import Path
 
 from bench.cli import limits
-from bench.cli.args import check_out_folder
+from bench.cli.args import check_out_folder, integer
 from bench.cli.evaluate import (
     OUTSIDE_HELP,
     VARIANT_HELP,
@@ -53,7 +53,7 @@ def add_compare_options(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--out", type=Path, help="report folder (default <dataset>/compare)")
     p.add_argument(
-        "--seeds", type=int, default=5, help="seeds per sweep level (default 5, at least 5)"
+        "--seeds", type=integer, default=5, help="seeds per sweep level (default 5, at least 5)"
     )
     p.add_argument("--quick", action="store_true", help="a small sweep (2 seeds, few levels)")
     p.add_argument(
@@ -64,7 +64,7 @@ def add_compare_options(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--speed-frames",
-        type=int,
+        type=integer,
         default=40,
         metavar="N",
         help="frames of the dataset to time each pipeline on, in runs of 10 consecutive frames "
@@ -81,7 +81,7 @@ def _add_rounds_option(p: argparse.ArgumentParser, name: str) -> None:
     low, high = limits.SPEED_ROUNDS_RANGE
     p.add_argument(
         name,
-        type=int,
+        type=integer,
         default=5,
         metavar="R",
         help="timing rounds, the pipelines alternating in each; frames/s is the median, the "
@@ -214,7 +214,7 @@ def add_bench_pipeline_options(p: argparse.ArgumentParser) -> None:
         metavar="NAME,...",
         help=f"variants to time; ratios are against the first (default {DEFAULT_PIPELINES_HELP})",
     )
-    p.add_argument("--frames", type=int, default=30, help="full frames to time (default 30)")
+    p.add_argument("--frames", type=integer, default=30, help="full frames to time (default 30)")
     _add_rounds_option(p, "--rounds")
     p.add_argument("--out", type=Path, help="also write bench.json into this folder")
     p.add_argument(

@@ -6,7 +6,14 @@ import argparse
 import sys
 
 from bench.cli import limits
-from bench.cli.args import check_executor, check_out_folder, distinct, name_list, seed
+from bench.cli.args import (
+    check_executor,
+    check_out_folder,
+    distinct,
+    integer,
+    name_list,
+    seed,
+)
 from bench.common.manifest import input_digests
 from bench.dataset.config import (
     DEFAULT_BRANCHES,
@@ -113,13 +120,13 @@ def add_dataset_options(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--frames-step",
-        type=int,
+        type=integer,
         default=1,
         help="keep every k-th frame (the slow indoor protocol has ~1000 frames per sample)",
     )
     p.add_argument("--speed", type=float, help="whisking speed mm/s (default: the protocol's)")
     p.add_argument("--amplitude", type=float, help="whisking amplitude mm (default 50)")
-    p.add_argument("--passes", type=int, help="translations (default: the protocol's)")
+    p.add_argument("--passes", type=integer, help="translations (default: the protocol's)")
     p.add_argument("--fps", type=float, help="frame rate (default 15)")
     p.add_argument(
         "--exposure-ms",
@@ -147,9 +154,11 @@ def add_dataset_options(p: argparse.ArgumentParser) -> None:
         help="radiance to sensor full scale, times the lighting preset's own (default 1)",
     )
     p.add_argument(
-        "--spp", type=int, default=4, help="samples per pixel where markers can be (default 4)"
+        "--spp", type=integer, default=4, help="samples per pixel where markers can be (default 4)"
     )
-    p.add_argument("--subframes", type=int, default=4, help="time samples per exposure (default 4)")
+    p.add_argument(
+        "--subframes", type=integer, default=4, help="time samples per exposure (default 4)"
+    )
     p.add_argument(
         "--full-frame", action="store_true", help="render whole frames, not just the band"
     )
@@ -160,7 +169,10 @@ def add_dataset_options(p: argparse.ArgumentParser) -> None:
         "with occluded sky)",
     )
     p.add_argument(
-        "--path-depth", type=int, default=3, help="bounces of --integrator path, 1..8 (default 3)"
+        "--path-depth",
+        type=integer,
+        default=3,
+        help="bounces of --integrator path, 1..8 (default 3)",
     )
     p.add_argument(
         "--adaptive",
@@ -297,7 +309,9 @@ def add_bench_dataset_parser(bench_sub: argparse._SubParsersAction) -> None:
         "dataset", help="frames/s of band and full-frame rendering, and their detections"
     )
     add_dataset_options(bdata)
-    bdata.add_argument("--frames", type=int, default=30, help="frames timed per mode (default 30)")
+    bdata.add_argument(
+        "--frames", type=integer, default=30, help="frames timed per mode (default 30)"
+    )
     bdata.add_argument(
         "--out", help="also write bench.json and a still frame (still.png) into this folder"
     )

@@ -10,7 +10,13 @@ import sys
 from pathlib import Path
 
 from bench.cli import limits
-from bench.cli.args import add_executor_options, check_executor, check_out_folder, name_list
+from bench.cli.args import (
+    add_executor_options,
+    check_executor,
+    check_out_folder,
+    integer,
+    name_list,
+)
 from bench.cli.hints import CSV, summary_hints
 from bench.cli.results import (
     add_results_options,
@@ -187,7 +193,9 @@ def add_score_options(p: argparse.ArgumentParser) -> None:
 
 
 def add_workers_options(p: argparse.ArgumentParser, task: str) -> None:
-    p.add_argument("--workers", type=int, default=1, help=f"worker processes, {task} (default 1)")
+    p.add_argument(
+        "--workers", type=integer, default=1, help=f"worker processes, {task} (default 1)"
+    )
     add_executor_options(p)
 
 

@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 
 from bench.cli import limits
-from bench.cli.args import check_out_folder, name_list, seed
+from bench.cli.args import check_out_folder, integer, name_list, seed
 from bench.ladder.config import OPTION_OF_FIELD, LadderConfig, LadderConfigError
 
 
@@ -26,18 +26,18 @@ def add_ladder_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, help="output folder (resumable)")
     p.add_argument("--quick", action="store_true", help="a tiny ladder for tests (seconds)")
     p.add_argument("--parts", type=name_list("--parts"), help="study,video (default both)")
-    p.add_argument("--images", type=int, help="images per study cell and rung (1..800)")
-    p.add_argument("--frames-step", type=int, help="render every n-th video frame (1..30)")
+    p.add_argument("--images", type=integer, help="images per study cell and rung (1..800)")
+    p.add_argument("--frames-step", type=integer, help="render every n-th video frame (1..30)")
     p.add_argument("--profile", help="the video's camera profile (default prototype)")
     p.add_argument(
         "--video-axes", type=name_list("--video-axes"), help="the video's axes (default all)"
     )
     p.add_argument("--spp", type=_spps, help="spp rungs, e.g. 1,2,4,8,16")
-    p.add_argument("--reference-spp", type=int, help="the reference's spp (1..1024)")
-    p.add_argument("--path-depth", type=int, help="the reference's path depth (1..8)")
+    p.add_argument("--reference-spp", type=integer, help="the reference's spp (1..1024)")
+    p.add_argument("--path-depth", type=integer, help="the reference's path depth (1..8)")
     p.add_argument("--pipeline", help="pipeline run on the clip (default paper)")
     p.add_argument("--seed", type=seed, help="seed of every render and noise draw")
-    p.add_argument("--workers", type=int, default=1, help="worker processes (default 1)")
+    p.add_argument("--workers", type=integer, default=1, help="worker processes (default 1)")
     p.add_argument("--variant", help="Mitsuba variant (default: the fastest available)")
     p.set_defaults(func=cmd_ladder)
 

@@ -6,6 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from bench.cli.args import integer
 from bench.lens.measure import DEFAULT_BIN_DEG, DEFAULT_MAX_FRAMES
 
 OPTION_OF_FIELD = {
@@ -43,7 +44,7 @@ def add_lens_parser(subparsers: argparse._SubParsersAction, parser_class: type) 
     )
     p.add_argument(
         "--max-frames",
-        type=int,
+        type=integer,
         default=DEFAULT_MAX_FRAMES,
         help=f"read at most this many frames (default {DEFAULT_MAX_FRAMES})",
     )

@@ -61,7 +61,10 @@ def cores() -> int:
 
 
 def _num(value: float) -> str:
-    """An integer as digits, anything else in %g."""
+    """An integer as digits (cut after 20), anything else in %g."""
+    if isinstance(value, int) and not isinstance(value, bool):
+        digits = str(value)
+        return digits if len(digits) <= 20 else f"{digits[:20]}... ({len(digits)} digits)"
     return str(int(value)) if float(value).is_integer() and abs(value) < 1e15 else f"{value:g}"
 
 
@@ -79,11 +82,12 @@ def _duration(seconds: float) -> str:
 def check_memory(field: str, value: float, bytes_each: float, what: str) -> None:
     """Refuse ``value`` units of ``bytes_each`` beyond the memory budget, naming the limit."""
     budget = memory_budget_bytes()
-    if value * bytes_each > budget:
+    if value > budget / bytes_each:  # an integer beyond floats compares exactly
         limit = max(0, math.floor(budget / bytes_each))
+        need = _gib(value * bytes_each) if value < 1e300 else "more than floats hold"
         raise FieldError(
             field,
-            f"{_num(value)}: {what} would need {_gib(value * bytes_each)}; limit {limit} "
+            f"{_num(value)}: {what} would need {need}; limit {limit} "
             f"(memory budget {_gib(budget)}, half of this machine's memory)",
         )
 
@@ -132,7 +136,7 @@ def check_camera(profile) -> None:
 def check_workers(field: str, workers: int, bytes_each: float = WORKER_BYTES) -> None:
     if workers < 1:
         raise FieldError(field, f"{workers}: must be >= 1")
-    check_memory(field, workers, bytes_each, f"{workers} workers")
+    check_memory(field, workers, bytes_each, f"{_num(workers)} workers")
 
 
 # --- per command ------------------------------------------------------------------------------
@@ -200,19 +204,28 @@ def _check_sample_memory(config, protocol: str, frames: float, workers: int) -> 
     budget = memory_budget_bytes() / workers
     if per_sample <= budget:
         return
-    factor = budget / per_sample  # how much smaller the sample has to be
     m = config.motion(protocol)
     growth = {**_motion_growth(config, protocol), "subframes": k / FrameSampling().subframes}
     field = culprit(growth)
-    value = {"amplitude_mm": m.amplitude_mm, "speed_mm_s": m.speed_mm_s, "fps": m.fps}.get(
-        field, m.passes if field == "passes" else k
-    )
+
+    def value_of(motion) -> float:
+        return {"amplitude_mm": motion.amplitude_mm, "speed_mm_s": motion.speed_mm_s}.get(
+            field, {"fps": motion.fps, "passes": motion.passes}.get(field, k)
+        )
+
+    value = scaled = value_of(m)
+    factor = budget / per_sample  # how much smaller the sample has to be
+    if factor == 0 and field != "subframes":  # more frames than a float holds: scale the
+        # protocol's own value of the culprit instead, the frames growing in proportion
+        own = dataclasses.replace(config, **{field: None})
+        scaled = value_of(own.motion(protocol))
+        factor = budget / (dataset_frames(own, protocol) * (k + 1) * SAMPLE_BYTES_PER_TIME_SAMPLE)
     if field == "speed_mm_s":
-        bound = f"lowest allowed about {value / factor:.3g}"
+        bound = f"lowest allowed about {scaled / factor:.3g}"
     elif field == "subframes":
         bound = f"limit {max(0, math.floor((k + 1) * factor) - 1)}"
     else:
-        bound = f"limit about {value * factor:.3g}"
+        bound = f"limit about {scaled * factor:.3g}"
     raise FieldError(
         field,
         f"{_num(value)}: one {protocol} sample of {frames:.4g} frames x {k + 1} time samples would "

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from bench.cli.args import integer
 from scenes.validation import FieldError
 
 
@@ -32,10 +33,10 @@ def add_bench_loader_parser(bench_sub) -> None:
     )
     p.add_argument("dataset", type=Path, metavar="DATASET", help="a dataset folder")
     p.add_argument("--sample", help="the sample id to read (default: the dataset's first)")
-    p.add_argument("--repeats", type=int, default=3, help="timed runs per reader (default 3)")
+    p.add_argument("--repeats", type=integer, default=3, help="timed runs per reader (default 3)")
     p.add_argument(
         "--random-frames",
-        type=int,
+        type=integer,
         default=20,
         help="frames read in random order for the random-access figure (default 20)",
     )

@@ -22,6 +22,7 @@ from bench.cli.args import (
     check_out_folder,
     check_variant,
     float_list,
+    integer,
     psf_scales_option,
     seed,
 )
@@ -128,7 +129,7 @@ def _add_study_options(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--images",
-        type=int,
+        type=integer,
         metavar="N",
         help="cap on images per cell: each cell draws images (10, 30, 80, 160, 240, ...) until "
         "the 95%% Wilson interval of its detection rate excludes 0.95 or N is reached "
@@ -151,7 +152,7 @@ def _add_study_options(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--cell-px",
-        type=int,
+        type=integer,
         default=4,
         help="pixels per code cell when OpenCV reads the bits (perspectiveRemovePixelPerCell), "
         "2..32 (default 4, OpenCV's and the original system's)",
@@ -193,7 +194,7 @@ def _add_study_options(p: argparse.ArgumentParser) -> None:
         "... (OpenCV's dictionary names; default 4x4_50)",
     )
     p.add_argument("--seed", type=seed, default=0, help="random seed, 0..2**32-1 (default 0)")
-    p.add_argument("--spp", type=int, default=16, help="samples per pixel of the clean render")
+    p.add_argument("--spp", type=integer, default=16, help="samples per pixel of the clean render")
     p.add_argument(
         "--variant",
         choices=("cuda_ad_rgb", "llvm_ad_rgb", "scalar_rgb"),
@@ -201,7 +202,7 @@ def _add_study_options(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--workers",
-        type=int,
+        type=integer,
         help="worker processes, one cell at a time each (default: one per core, as many as "
         "memory allows; 1 runs in this process)",
     )
@@ -341,7 +342,7 @@ def _parser() -> argparse.ArgumentParser:
     _add_study_options(bdet)
     bdet.add_argument(
         "--full-frame-cells",
-        type=int,
+        type=integer,
         default=2,
         help="cells rendered as full 2592x1944 frames for the ratio (default 2)",
     )
@@ -367,7 +368,7 @@ def _parser() -> argparse.ArgumentParser:
     data.add_argument("--out", help="dataset folder (default data/default, data/quick)")
     data.add_argument(
         "--workers",
-        type=int,
+        type=integer,
         default=1,
         help="worker processes, one sample each (default 1: one sample uses every core)",
     )

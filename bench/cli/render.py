@@ -6,7 +6,7 @@ import argparse
 
 from bench.benchmarks.render import SCENES
 from bench.cli import limits
-from bench.cli.args import check_out_folder
+from bench.cli.args import check_out_folder, integer
 from renderers.variant import VARIANTS
 from scenes.validation import FieldError
 
@@ -56,8 +56,8 @@ def add_bench_render_parser(bench_sub) -> None:
         default="marker",
         help="marker: the study's marker; array: the whisker array in foliage (default marker)",
     )
-    p.add_argument("--spp", type=int, default=4, help="samples per pixel, both (default 4)")
-    p.add_argument("--threads", type=int, help="threads of both renderers (default: cores)")
+    p.add_argument("--spp", type=integer, default=4, help="samples per pixel, both (default 4)")
+    p.add_argument("--threads", type=integer, help="threads of both renderers (default: cores)")
     p.add_argument("--variant", choices=VARIANTS, help="Mitsuba variant (default: fastest)")
     p.add_argument("--out", help="also write bench.json and both 8-bit images here")
     p.set_defaults(func=cmd_bench_render)

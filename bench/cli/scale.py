@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 
 from bench.cli import limits
-from bench.cli.args import check_out_folder, name_list
+from bench.cli.args import check_out_folder, integer, name_list
 from bench.common.executor import EXECUTORS
 from bench.study.config import StudyConfig
 from scenes.validation import FieldError
@@ -21,7 +21,7 @@ def add_scale_options(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--workers-max",
-        type=int,
+        type=integer,
         default=2,
         help="pool and Dask rows with 2..N workers (default 2; 1 times the baseline alone)",
     )

@@ -236,6 +236,9 @@ def profile_from_option(text: str) -> CameraProfile:
         return load_profile(text)
     except ProfileError as exc:
         raise StudyConfigError("camera", exc.option_detail) from None
+    except OSError as exc:  # a name too long for a file, a link loop: the argument's fault
+        shown = text if len(text) <= 40 else f"{text[:40]}..."
+        raise StudyConfigError("camera", f"{shown}: {exc.strerror or exc}") from None
 
 
 def nondefault_options(config: StudyConfig) -> list[str]:
