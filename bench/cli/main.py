@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import errno
 import re
 import sys
 from pathlib import Path
@@ -438,7 +439,8 @@ def _main(argv: list[str] | None) -> int:
             raise  # not a bug: main ends quietly
         line = environment_failure(command, exc, args.kept)  # the system's, not a bug
         print(line or bug_report(command, exc), file=sys.stderr)
-        return 1
+        too_long = isinstance(exc, OSError) and exc.errno == errno.ENAMETOOLONG  # a name given
+        return 2 if line and too_long else 1
 
 
 if __name__ == "__main__":
