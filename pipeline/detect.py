@@ -26,6 +26,7 @@ refinements are OpenCV's own; a peer offers ``"none"`` (its own corners) or ``"l
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -39,6 +40,26 @@ from scenes.marker import check_dictionary, get_dictionary
 
 #: The refinements a peer backend offers: its own corners, or the project's edge lines.
 PEER_REFINEMENTS = ("none", "lines")
+#: Largest adaptive-threshold window (px): wider than any marker's image in a full frame.
+MAX_WINDOW_PX = 1001
+#: Most threshold windows: each is one thresholding pass over the frame (OpenCV's default: 3).
+MAX_WINDOWS = 32
+#: The adaptive threshold's constant, at most this many grey levels either way.
+MAX_THRESH_CONSTANT = 255.0
+
+
+def window_problem(lo: int, hi: int, step: int) -> str | None:
+    """What is wrong with adaptive-threshold windows ``lo..hi`` by ``step`` px, or None: OpenCV
+    asserts windows of at least 3 px, ``hi >= lo`` and a positive step; the bounds above keep
+    the work finite."""
+    if lo < 3 or hi < lo or step < 1 or hi > MAX_WINDOW_PX:
+        return f"need 3 <= MIN <= MAX <= {MAX_WINDOW_PX} and STEP >= 1"
+    if (hi - lo) // step + 1 > MAX_WINDOWS:
+        return (
+            f"{(hi - lo) // step + 1} windows: at most {MAX_WINDOWS} (each is one thresholding "
+            "pass over the frame)"
+        )
+    return None
 
 
 @dataclass(frozen=True)
@@ -85,6 +106,23 @@ class DetectorConfig:
             raise ValueError(f"cell_px={self.cell_px!r}: must be an integer in 2..32")
         if not 2 <= self.cell_px <= 32:
             raise ValueError(f"cell_px={self.cell_px}: allowed range is 2..32")
+        windows = (
+            self.adaptive_thresh_win_size_min,
+            self.adaptive_thresh_win_size_max,
+            self.adaptive_thresh_win_size_step,
+        )
+        if any(isinstance(w, bool) or not isinstance(w, int) for w in windows):
+            raise ValueError(f"adaptive threshold windows {windows}: must be integers")
+        problem = window_problem(*windows)
+        if problem:
+            lo, hi, step = windows
+            raise ValueError(f"adaptive threshold windows {lo}..{hi} step {step}: {problem}")
+        c = self.adaptive_thresh_constant
+        if not (math.isfinite(c) and abs(c) <= MAX_THRESH_CONSTANT):
+            limit = f"{MAX_THRESH_CONSTANT:g}"
+            raise ValueError(
+                f"adaptive_thresh_constant={c!r}: allowed range is -{limit}..{limit} grey levels"
+            )
 
 
 @dataclass(frozen=True)
@@ -113,7 +151,9 @@ def detect_markers(
     raises :class:`pipeline.backends.BackendCrashError`; one not installed
     :class:`pipeline.backends.BackendUnavailableError`.
     """
-    if image.ndim != 2 or image.dtype != np.uint8:
+    if not isinstance(image, np.ndarray):
+        raise ValueError(f"need an 8-bit grey image (a NumPy array), got {type(image).__name__}")
+    if image.ndim != 2 or image.dtype != np.uint8 or image.size == 0:
         raise ValueError(f"need an 8-bit grey image, got {image.dtype} of shape {image.shape}")
     lines = config.corner_refinement == "lines"
     if (lines or own_pose_size_mm is not None) and camera is None:

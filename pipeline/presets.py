@@ -46,15 +46,11 @@ from dataclasses import dataclass
 
 from pipeline.backends import PLUGIN_PREFIX, check_family
 from pipeline.branches import AGGREGATIONS
-from pipeline.detect import DetectorConfig
+from pipeline.detect import MAX_THRESH_CONSTANT, DetectorConfig, window_problem
 from pipeline.pose import POSE_METHODS
 from pipeline.track import Search
 
 THRESHOLDS = ("fixed", "online")
-#: Largest adaptive-threshold window (px): wider than any marker's image in a full frame.
-MAX_WINDOW_PX = 1001
-#: Most threshold windows: each is one thresholding pass over the frame (OpenCV's default: 3).
-MAX_WINDOWS = 32
 #: Largest tracking margin (px): the full frame's width.
 MAX_MARGIN_PX = 4096
 
@@ -152,15 +148,9 @@ def _window(text: str) -> dict:
     if not 1 <= len(sizes) <= 3:
         raise ValueError("window=MIN[-MAX[-STEP]]")
     lo, hi, step = (sizes + sizes[:1] + [10])[:3] if len(sizes) == 1 else (sizes + [10])[:3]
-    if lo < 3 or hi < lo or step < 1 or hi > MAX_WINDOW_PX:
-        raise ValueError(
-            f"window=MIN[-MAX[-STEP]]: need 3 <= MIN <= MAX <= {MAX_WINDOW_PX} and STEP >= 1"
-        )
-    if (hi - lo) // step + 1 > MAX_WINDOWS:
-        raise ValueError(
-            f"{(hi - lo) // step + 1} windows: at most {MAX_WINDOWS} (each is one thresholding "
-            "pass over the frame)"
-        )
+    problem = window_problem(lo, hi, step)
+    if problem:
+        raise ValueError(f"window=MIN[-MAX[-STEP]]: {problem}")
     return {
         "adaptive_thresh_win_size_min": lo,
         "adaptive_thresh_win_size_max": hi,
@@ -181,8 +171,9 @@ def _constant(text: str) -> dict:
         value = float(text)
     except ValueError:
         raise ValueError(f"{text!r} is not a number") from None
-    if not (math.isfinite(value) and -255 <= value <= 255):
-        raise ValueError(f"{text}: allowed range is -255..255 grey levels")
+    if not (math.isfinite(value) and abs(value) <= MAX_THRESH_CONSTANT):
+        limit = f"{MAX_THRESH_CONSTANT:g}"
+        raise ValueError(f"{text}: allowed range is -{limit}..{limit} grey levels")
     return {"adaptive_thresh_constant": value}
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
 from pipeline.detect import DetectorConfig
@@ -74,6 +75,33 @@ def test_cli_refuses_a_bad_variant_in_one_line(tmp_path):
         assert run.returncode == 2, args
         assert len(run.stderr.strip().splitlines()) == 1, run.stderr
     assert not any(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize(
+    "fields, says",
+    [
+        ({"adaptive_thresh_win_size_min": -3}, "windows -3..23 step 10: need 3 <= MIN"),
+        ({"adaptive_thresh_win_size_max": 10**9}, "need 3 <= MIN <= MAX <= 1001"),
+        ({"adaptive_thresh_win_size_step": 0}, "STEP >= 1"),
+        ({"adaptive_thresh_win_size_max": 999, "adaptive_thresh_win_size_step": 1}, "at most 32"),
+        ({"adaptive_thresh_win_size_min": 3.5}, "must be integers"),
+        ({"adaptive_thresh_constant": float("inf")}, "-255..255 grey levels"),
+    ],
+)
+def test_a_detector_config_refuses_what_opencv_would_assert_on(fields, says):
+    """The same rule as the ``window=`` and ``constant=`` choices, for the API's own configs:
+    OpenCV would raise its own assertion (a window under 3 px), or threshold a billion times."""
+    with pytest.raises(ValueError, match=None) as info:
+        DetectorConfig(**fields)
+    assert says in str(info.value), str(info.value)
+
+
+@pytest.mark.parametrize("image", [np.zeros((0, 0), np.uint8), [[0] * 8] * 8, None, "a.png"])
+def test_detect_markers_refuses_what_is_no_grey_image(image):
+    from pipeline.detect import detect_markers
+
+    with pytest.raises(ValueError, match="need an 8-bit grey image"):
+        detect_markers(image, DetectorConfig())
 
 
 def test_cell_choice_sets_the_bit_sampling():
