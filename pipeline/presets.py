@@ -237,6 +237,8 @@ def get_pipeline(name: str) -> PipelineConfig:
     """The preset, a plugin's pipeline (``plugin:SPEC``), or the variant a
     ``PRESET/choice=value/...`` name describes; ValueError (one line, naming the bad part)
     otherwise."""
+    if not isinstance(name, str):
+        raise ValueError(f"pipeline {name!r}: a pipeline is named by a string")
     base, changes = _base(name)
     config = dataclasses.replace(base, name=name)
     detector: dict = {}  # applied together: a backend and its refinement are one choice

@@ -80,6 +80,10 @@ def test_random_access_equals_the_sequential_decode(fake) -> None:
         assert frame.index == index % 64 and np.array_equal(frame.image, truth[index])
     with pytest.raises(IndexError, match="out of range"):
         sample.frame(64)
+    for index in (1.5, "3", None, True):
+        with pytest.raises(TypeError, match="a frame is taken by integer index"):
+            sample.frame(index)
+    assert sample.frame(np.int64(2)).index == 2
     sample.close()
     assert np.array_equal(sample.frame(10).image, truth[10])  # reopens
 

@@ -53,6 +53,7 @@ def test_a_variant_changes_only_what_it_names():
         ("paper/search=somewhere", "search='somewhere'"),
         ("paper/pose=", "is not CHOICE=VALUE"),
         ("paper/aggregation=sum", "aggregation='sum'"),
+        (None, "a pipeline is named by a string"),
     ],
 )
 def test_bad_variant_names_say_what_is_wrong(name, says):

@@ -138,6 +138,8 @@ class Sample:
     # --- frames
     def frame(self, index: int) -> Frame:
         """Frame ``index`` (negative counts from the end), decoded now; IndexError if none."""
+        if isinstance(index, bool) or not isinstance(index, int | np.integer):
+            raise TypeError(f"a frame is taken by integer index, not {type(index).__name__}")
         n = len(self)
         if not -n <= index < n:
             raise IndexError(f"{self.id}: frame {index} out of range (the sample has {n})")
