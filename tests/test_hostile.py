@@ -210,6 +210,10 @@ CASES: list[tuple[str, str]] = [
     ("dataset --branches=0+nan", r"--branches.*not finite"),
     ("dataset --branches=1e9", r"--branches.*out of reach"),
     ("dataset --branches=1e308", r"--branches.*1e\+308 mm is out of reach"),  # no overflow
+    # the option that was changed is named, not the default it collides with
+    ("dataset --amplitude=0.001", r"--amplitude: branch at x = 50 mm .*0\.001 mm sweep"),
+    (f"{S} --distance=5", r"--distance: 5: closer than the largest marker, 17\.6 mm"),
+    (f"{S} --distance=5 --sizes=8", r"--sizes: 8: larger than the 5 mm distance"),
     ("dataset --protocol=", r"--protocol.*at least one"),
     ("dataset --lighting=sun,sun", r"--lighting.*twice"),
     ("dataset --frames-step=0", r"--frames-step.*>= 1"),

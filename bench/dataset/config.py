@@ -230,7 +230,18 @@ class DatasetConfig:
                         raise DatasetConfigError("branches", f"{branches} is not finite")
                     error = branch_reach_error(branches, distance, self.array, motion.amplitude_mm)
                     if error:
-                        raise DatasetConfigError("branches", error)
+                        raise DatasetConfigError(self._reach_culprit(branches, distance), error)
+
+    def _reach_culprit(self, branches: tuple[float, ...], distance: str) -> str:
+        """The field to blame for a branch out of reach: a sweep narrowed by ``amplitude_mm``
+        when the protocol's own sweep would reach the branch, else the branches."""
+        if self.amplitude_mm is None:
+            return "branches"
+        for protocol in self.protocols:
+            own = get_protocol(protocol).amplitude_mm
+            if branch_reach_error(branches, distance, self.array, own) is None:
+                return "amplitude_mm"
+        return "branches"
 
     def _check_lens(self) -> None:
         """The profile's lens must see every marker at any deflection and make even-sized

@@ -109,6 +109,13 @@ class StudyConfig:
         if not (math.isfinite(self.distance_mm) and 0 < self.distance_mm <= MAX_DISTANCE_MM):
             fail("distance_mm", f"{self.distance_mm}: allowed range is (0, {MAX_DISTANCE_MM:g}] mm")
         if max(self.sizes_mm) > self.distance_mm:
+            if self.sizes_mm == DEFAULT_SIZES_MM:  # the default sizes: the distance moved
+                fail(
+                    "distance_mm",
+                    f"{self.distance_mm:g}: closer than the largest marker, "
+                    f"{max(self.sizes_mm):g} mm, which would fill the image; allowed range is "
+                    f"[{max(self.sizes_mm):g}, {MAX_DISTANCE_MM:g}] mm",
+                )
             fail(
                 "sizes_mm",
                 f"{max(self.sizes_mm):g}: larger than the {self.distance_mm:g} mm distance, the "
