@@ -110,9 +110,9 @@ def test_a_reader_closing_stdout_early_ends_the_command_quietly(argv, unbuffered
 def test_a_broken_pipe_elsewhere_is_still_a_bug(monkeypatch, capsys):
     """Only stdout's reader going away is quiet; a worker's broken pipe is reported."""
 
-    def crash(args):
+    def crash(*args, **kwargs):
         raise BrokenPipeError(32, "Broken pipe")
 
-    monkeypatch.setattr("bench.cli.main._cmd_detectability", crash)
+    monkeypatch.setattr("bench.study.run.run_study", crash)
     assert main(["detectability", "--quick"]) == 1
     assert "internal error: BrokenPipeError" in capsys.readouterr().err

@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import errno
+import functools
 import re
 import sys
 from pathlib import Path
@@ -321,6 +322,7 @@ def _cmd_bench_scale(args: argparse.Namespace) -> int:
     return cmd_bench_scale(args, study_config(_parser().parse_args(["detectability", "--quick"])))
 
 
+@functools.cache  # once per process: parsing keeps no state (tests call main thousands of times)
 def _parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="whiskerbench", description=__doc__.splitlines()[0])
     parser.add_argument("--version", action="version", version=f"%(prog)s {whiskerbench_version()}")
