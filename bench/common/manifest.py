@@ -9,6 +9,7 @@ writing anything, so two commands pointed at one folder never overwrite each oth
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import platform
@@ -57,13 +58,18 @@ def whiskerbench_version() -> str:
 
 def package_versions() -> dict[str, str]:
     """Python's and every package's version that shapes the results, this project's first."""
+    return dict(_versions())
+
+
+@functools.cache  # once per process: each lookup scans the installed distributions (~2 ms)
+def _versions() -> tuple[tuple[str, str], ...]:
     versions = {"python": platform.python_version(), DISTRIBUTION: whiskerbench_version()}
     for name in PACKAGES:
         try:
             versions[name] = metadata.version(name)
         except metadata.PackageNotFoundError:
             versions[name] = "not installed"
-    return versions
+    return tuple(versions.items())
 
 
 def sha256(path: Path) -> str:
