@@ -213,6 +213,7 @@ PLAIN_OPENCV = Path(__file__).resolve().parents[1] / "examples" / "results_file"
 
 
 @pytest.mark.slow
+@pytest.mark.usefixtures("figures_not_drawn")  # the scores are the answer
 def test_plain_opencv_results_score_as_the_equivalent_built_in_pipeline(
     rendered_pair, tmp_path
 ) -> None:
