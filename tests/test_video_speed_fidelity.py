@@ -120,4 +120,5 @@ def test_still_frames_reuse_the_optical_image_and_match_a_fresh_render(variant) 
         expected = fresh.twin.record(fresh.radiance(f))
         np.testing.assert_array_equal(reusing.frame(f), expected, err_msg=f"frame {f}")
     assert reusing.frames_reused == len(still)
-    assert reusing.render_s < fresh.render_s
+    # rendered only the frames that moved (rays counted, not timed: timing is the benchmark's)
+    assert reusing.renderer.rays_traced == fresh.renderer.rays_traced * (5 - len(still)) // 5
