@@ -34,8 +34,11 @@ def _touchable(
 
 
 def _reach_limit_mm(array: ArraySpec, sweep_mm: float) -> int:
-    """A bound on |x| of any branch a rod can touch: the rods' reach, the sweep, the branch."""
-    return math.ceil(reach_z_mm(array) + sweep_mm + BRANCH_RADIUS_MM)
+    """A bound on |x| of any branch a rod can touch: the rods' reach, the sweep, the branch's
+    and the rod's radii (the contact test's distance)."""
+    return math.ceil(
+        reach_z_mm(array) + sweep_mm + BRANCH_RADIUS_MM + 0.5 * array.whisker_diameter_mm
+    )
 
 
 def _reachable_ranges(distance: str, array: ArraySpec, sweep_mm: float) -> str:
