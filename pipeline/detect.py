@@ -62,6 +62,14 @@ def window_problem(lo: int, hi: int, step: int) -> str | None:
     return None
 
 
+def constant_problem(value: float) -> str | None:
+    """What is wrong with an adaptive-threshold constant (grey levels), or None."""
+    if not (math.isfinite(value) and abs(value) <= MAX_THRESH_CONSTANT):
+        limit = f"{MAX_THRESH_CONSTANT:g}"
+        return f"allowed range is -{limit}..{limit} grey levels"
+    return None
+
+
 @dataclass(frozen=True)
 class DetectorConfig:
     """The detector's settings; the OpenCV fields are documented by its DetectorParameters."""
@@ -117,11 +125,10 @@ class DetectorConfig:
         if problem:
             lo, hi, step = windows
             raise ValueError(f"adaptive threshold windows {lo}..{hi} step {step}: {problem}")
-        c = self.adaptive_thresh_constant
-        if not (math.isfinite(c) and abs(c) <= MAX_THRESH_CONSTANT):
-            limit = f"{MAX_THRESH_CONSTANT:g}"
+        problem = constant_problem(self.adaptive_thresh_constant)
+        if problem:
             raise ValueError(
-                f"adaptive_thresh_constant={c!r}: allowed range is -{limit}..{limit} grey levels"
+                f"adaptive_thresh_constant={self.adaptive_thresh_constant!r}: {problem}"
             )
 
 

@@ -41,12 +41,11 @@ changes, for example ``paper/refine=contour/aruco3=on`` or ``fast/window=3-23-10
 from __future__ import annotations
 
 import dataclasses
-import math
 from dataclasses import dataclass
 
 from pipeline.backends import PLUGIN_PREFIX, check_family
 from pipeline.branches import AGGREGATIONS
-from pipeline.detect import MAX_THRESH_CONSTANT, DetectorConfig, window_problem
+from pipeline.detect import DetectorConfig, constant_problem, window_problem
 from pipeline.pose import POSE_METHODS
 from pipeline.track import Search
 
@@ -171,9 +170,9 @@ def _constant(text: str) -> dict:
         value = float(text)
     except ValueError:
         raise ValueError(f"{text!r} is not a number") from None
-    if not (math.isfinite(value) and abs(value) <= MAX_THRESH_CONSTANT):
-        limit = f"{MAX_THRESH_CONSTANT:g}"
-        raise ValueError(f"{text}: allowed range is -{limit}..{limit} grey levels")
+    problem = constant_problem(value)
+    if problem:
+        raise ValueError(f"{text}: {problem}")
     return {"adaptive_thresh_constant": value}
 
 

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from scenes.validation import FieldError
+from scenes.validation import FieldError, shown_value
 
 
 class MotionSpecError(FieldError):
@@ -62,8 +62,9 @@ class MotionSpec:
         p = self.passes
         whole = isinstance(p, numbers.Integral) or (isinstance(p, float) and p.is_integer())
         if isinstance(p, bool) or not (whole and 1 <= p <= MAX_PASSES):
-            shown = str(p) if len(str(p)) <= 20 else f"an integer of {len(str(p))} digits"
-            raise MotionSpecError("passes", f"must be an integer 1..{MAX_PASSES}, got {shown}")
+            raise MotionSpecError(
+                "passes", f"must be an integer 1..{MAX_PASSES}, got {shown_value(p)}"
+            )
 
     def waypoints(self) -> tuple[np.ndarray, np.ndarray]:
         """(times_s (W,), offsets_mm (W, 2)): the corners of the piecewise-linear path."""

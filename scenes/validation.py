@@ -24,6 +24,15 @@ class FieldError(ValueError):
         self.detail = message
 
 
+def shown_value(value: object) -> str:
+    """A value as a one-line refusal quotes it: as written, but an integer of over 20 digits by
+    its length (a 400-digit number would fill the line)."""
+    text = str(value)
+    if isinstance(value, int) and len(text.lstrip("-")) > 20:
+        return f"an integer of {len(text.lstrip('-'))} digits"
+    return text
+
+
 #: Deepest nesting a small JSON settings file (profile, observations) may have.
 MAX_JSON_DEPTH = SETTINGS_DEPTH
 

@@ -15,7 +15,6 @@ from pipeline.backends.isolated import stop_workers
 from pipeline.detect import DetectorConfig
 from pipeline.track import MarkerSet, Search, pose_arrays, recovery_detector, track
 from scenes.camera import default_camera
-from scenes.profile import load_profile
 from scenes.tables import (
     JOIN_KEY,
     OWN_POSE_PREFIX,
@@ -47,23 +46,16 @@ def test_marker_set_rejects_duplicates() -> None:
 
 
 @pytest.fixture(scope="module")
-def rendered(variant):
-    """A short rendered sample: (frames, labels, camera, markers)."""
+def rendered(variant, pair_config):
+    """A short rendered sample (the pair's setting, ideal camera, a branch at 0 mm, every 6th
+    frame): (frames, labels, camera, markers)."""
     if variant.startswith("scalar"):
         pytest.skip("frame rendering needs a JIT variant")
-    from bench.dataset.config import DatasetConfig
+    import dataclasses
+
     from bench.dataset.sample import sample_recorder, simulate_sample
 
-    config = DatasetConfig(
-        camera=load_profile("ideal"),  # pipeline tests on exact pixels, not the twin
-        foliage=("soft",),
-        distances=("intermediate",),
-        branches=((0.0,),),
-        protocols=("outdoor",),
-        lightings=("lab",),
-        passes=1,
-        frames_step=6,
-    )
+    config = dataclasses.replace(pair_config, branches=((0.0,),), frames_step=6)
     sample = config.samples()[0]
     sim = simulate_sample(config, sample)
     frames = sample_recorder(config, sample, sim)

@@ -93,21 +93,18 @@ def test_adaptive_is_off_by_default_and_leaves_the_settings_hash() -> None:
 
 
 @pytest.mark.slow
-def test_still_frames_reuse_the_optical_image_and_match_a_fresh_render(variant) -> None:
+def test_still_frames_reuse_the_optical_image_and_match_a_fresh_render(variant, pair_config):
     """A frame whose array and path equal the previous frame's (the still lead-in) is recorded
     from that frame's optical image, and comes out byte for byte as rendering it again would."""
-    from bench.dataset.config import DatasetConfig
+    from bench.dataset.config import default_profile
     from bench.dataset.sample import sample_recorder, simulate_sample
 
     if variant.startswith("scalar"):
         pytest.skip("frame rendering needs a JIT variant")
-    config = DatasetConfig(
-        foliage=("soft",),
-        distances=("intermediate",),
+    config = dataclasses.replace(  # the pair's setting through the camera twin's optics
+        pair_config,
+        camera=default_profile(),
         branches=((0.0,),),
-        protocols=("outdoor",),
-        lightings=("lab",),
-        passes=1,
         frames_step=6,
         sampling=FrameSampling(marker_spp=1),
     )

@@ -19,7 +19,7 @@ from pathlib import Path
 from bench.common.atomic import check_writable
 from bench.common.executor import CONNECT_TIMEOUT_S, EXECUTORS
 from bench.common.run_folder import check_not_input, check_not_owned, check_out_path
-from scenes.validation import MAX_SEED, FieldError
+from scenes.validation import MAX_SEED, FieldError, shown_value
 
 #: Where a command's run folder goes without ``--out``: not ``results/``, which holds the
 #: committed results (the Makefile's targets write there by ``--out``), so a user's run on a
@@ -101,9 +101,9 @@ def integer(text: str) -> int:
     :data:`MAX_INTEGER` in magnitude; each option's own range is checked after."""
     value = int(text)  # ValueError: argparse says "invalid integer value"
     if abs(value) > MAX_INTEGER:
-        digits = str(abs(value))
-        shown = digits if len(digits) <= 20 else f"an integer of {len(digits)} digits"
-        raise argparse.ArgumentTypeError(f"{shown}: at most {MAX_INTEGER} in magnitude")
+        raise argparse.ArgumentTypeError(
+            f"{shown_value(value)}: at most {MAX_INTEGER} in magnitude"
+        )
     return value
 
 

@@ -61,10 +61,7 @@ def cores() -> int:
 
 
 def _num(value: float) -> str:
-    """An integer as digits (cut after 20), anything else in %g."""
-    if isinstance(value, int) and not isinstance(value, bool):
-        digits = str(value)
-        return digits if len(digits) <= 20 else f"{digits[:20]}... ({len(digits)} digits)"
+    """An integer as digits, anything else in %g."""
     return str(int(value)) if float(value).is_integer() and abs(value) < 1e15 else f"{value:g}"
 
 
@@ -82,12 +79,11 @@ def _duration(seconds: float) -> str:
 def check_memory(field: str, value: float, bytes_each: float, what: str) -> None:
     """Refuse ``value`` units of ``bytes_each`` beyond the memory budget, naming the limit."""
     budget = memory_budget_bytes()
-    if value > budget / bytes_each:  # an integer beyond floats compares exactly
+    if value * bytes_each > budget:
         limit = max(0, math.floor(budget / bytes_each))
-        need = _gib(value * bytes_each) if value < 1e300 else "more than floats hold"
         raise FieldError(
             field,
-            f"{_num(value)}: {what} would need {need}; limit {limit} "
+            f"{_num(value)}: {what} would need {_gib(value * bytes_each)}; limit {limit} "
             f"(memory budget {_gib(budget)}, half of this machine's memory)",
         )
 
@@ -136,7 +132,7 @@ def check_camera(profile) -> None:
 def check_workers(field: str, workers: int, bytes_each: float = WORKER_BYTES) -> None:
     if workers < 1:
         raise FieldError(field, f"{workers}: must be >= 1")
-    check_memory(field, workers, bytes_each, f"{_num(workers)} workers")
+    check_memory(field, workers, bytes_each, f"{workers} workers")
 
 
 # --- per command ------------------------------------------------------------------------------
@@ -200,7 +196,8 @@ def _motion_growth(config, protocol: str) -> dict[str, float]:
 def _check_sample_memory(config, protocol: str, frames: float, workers: int) -> None:
     """Refuse a sample whose simulation would not fit, naming the option that lengthened it."""
     k = config.sampling.subframes
-    per_sample = frames * (k + 1) * SAMPLE_BYTES_PER_TIME_SAMPLE
+    bytes_per_frame = (k + 1) * SAMPLE_BYTES_PER_TIME_SAMPLE
+    per_sample = frames * bytes_per_frame
     budget = memory_budget_bytes() / workers
     if per_sample <= budget:
         return
@@ -209,9 +206,12 @@ def _check_sample_memory(config, protocol: str, frames: float, workers: int) -> 
     field = culprit(growth)
 
     def value_of(motion) -> float:
-        return {"amplitude_mm": motion.amplitude_mm, "speed_mm_s": motion.speed_mm_s}.get(
-            field, {"fps": motion.fps, "passes": motion.passes}.get(field, k)
-        )
+        return {
+            "amplitude_mm": motion.amplitude_mm,
+            "speed_mm_s": motion.speed_mm_s,
+            "fps": motion.fps,
+            "passes": motion.passes,
+        }.get(field, k)
 
     value = scaled = value_of(m)
     factor = budget / per_sample  # how much smaller the sample has to be
@@ -219,7 +219,7 @@ def _check_sample_memory(config, protocol: str, frames: float, workers: int) -> 
         # protocol's own value of the culprit instead, the frames growing in proportion
         own = dataclasses.replace(config, **{field: None})
         scaled = value_of(own.motion(protocol))
-        factor = budget / (dataset_frames(own, protocol) * (k + 1) * SAMPLE_BYTES_PER_TIME_SAMPLE)
+        factor = budget / (dataset_frames(own, protocol) * bytes_per_frame)
     if field == "speed_mm_s":
         bound = f"lowest allowed about {scaled / factor:.3g}"
     elif field == "subframes":
