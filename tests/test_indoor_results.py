@@ -58,5 +58,5 @@ def test_every_outcome_follows_from_its_gaps(committed):
     for row in scored.itertuples():
         got = branch_outcome(json.loads(row.estimated_gaps), json.loads(row.true_gaps))
         assert got["outcome"] == row.outcome, row.sample_id
-    refused = samples[samples["outcome"] == "refused"]
-    assert refused["refused_reason"].str.startswith("no no-contact frames").all()
+    refused = samples[samples["outcome"] == "refused"]  # the column is written only with one
+    assert refused.empty or refused["refused_reason"].str.startswith("no no-contact frames").all()
