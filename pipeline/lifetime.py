@@ -1,4 +1,4 @@
-"""A worker process that dies with its parent, SIGKILL included, and leaves Ctrl-C to it.
+"""A worker process that dies with its parent, SIGKILL included.
 
 Used by the bench's process pools and by the detector backends' worker processes
 (:mod:`pipeline.backends.isolated`): an orphaned worker would hold cores and memory forever.
@@ -40,19 +40,3 @@ def exit_with_parent(parent_pid: int) -> None:
         os._exit(1)
 
     threading.Thread(target=watch, name="parent-watch", daemon=True).start()
-
-
-def _ignored(_signum: int, _frame: object) -> None:
-    """A worker's Ctrl-C: nothing; its parent answers it (and the worker dies with it)."""
-
-
-def leave_ctrl_c_to_parent() -> None:
-    """Let Ctrl-C, which reaches every process of the terminal's group, interrupt the parent only.
-
-    A worker it interrupted would take the KeyboardInterrupt as its task's error and run the next
-    task in whatever state the interruption left, or finish one whose library swallowed it (a
-    study cell was seen written after Ctrl-C with other column types); a detector's worker would
-    die and leave its failures in the results. A handler, unlike SIG_IGN, is not inherited by the
-    programs a worker starts (ffmpeg), which still stop at Ctrl-C.
-    """
-    signal.signal(signal.SIGINT, _ignored)

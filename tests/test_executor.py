@@ -1,5 +1,5 @@
-"""The task pool: a per-worker context handed to every task, workers that die with their
-parent, SIGKILL included, and Ctrl-C answered by the parent alone."""
+"""The task pool: a per-worker context handed to every task, and workers that die with their
+parent, SIGKILL included."""
 
 import os
 import signal
@@ -123,67 +123,6 @@ def test_workers_die_when_their_parent_is_killed(tmp_path, parent_code):
         for mark in marks.iterdir():
             if _alive(int(mark.name)):
                 os.kill(int(mark.name), signal.SIGKILL)
-
-
-INTERRUPTED_PARENT = """
-import os, sys, time
-from pathlib import Path
-
-from bench.common.executor import TaskPool
-
-
-def work(task, _context):
-    Path(sys.argv[1], f"started-{os.getpid()}-{task}").touch()
-    end = time.monotonic() + 30
-    while time.monotonic() < end:
-        time.sleep(0.05)
-    Path(sys.argv[1], f"finished-{task}").touch()
-
-
-if __name__ == "__main__":
-    try:
-        with TaskPool(2) as pool:
-            list(pool.map(work, range(4), progress=False))
-    except KeyboardInterrupt:
-        sys.exit(130)
-"""
-
-
-@pytest.mark.slow
-@pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals")
-def test_ctrl_c_ends_the_workers_and_no_task_goes_on_after_it(tmp_path):
-    """Ctrl-C reaches the whole group; a worker that took it as its task's error went on to the
-    next task in whatever state the interruption left (a study cell was written after Ctrl-C with
-    other column types), and the parent waited for it."""
-    script = tmp_path / "parent.py"
-    script.write_text(textwrap.dedent(INTERRUPTED_PARENT))
-    marks = tmp_path / "marks"
-    marks.mkdir()
-    env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    parent = subprocess.Popen(
-        [sys.executable, str(script), str(marks)], env=env, start_new_session=True
-    )
-    try:
-        deadline = time.monotonic() + 60
-        while len(list(marks.glob("started-*"))) < 2:
-            assert time.monotonic() < deadline, "the workers never started"
-            assert parent.poll() is None, "the parent ended early"
-            time.sleep(0.05)
-        workers = {int(p.name.split("-")[1]) for p in marks.glob("started-*")}
-        t0 = time.monotonic()
-        os.killpg(parent.pid, signal.SIGINT)  # a terminal's Ctrl-C
-        assert parent.wait(timeout=60) == 130
-        assert time.monotonic() - t0 < 15, "the parent waited for its workers' tasks"
-        deadline = time.monotonic() + 5
-        while any(_alive(pid) for pid in workers) and time.monotonic() < deadline:
-            time.sleep(0.05)
-        assert not [pid for pid in workers if _alive(pid)], "a worker outlived the Ctrl-C"
-        assert sorted(p.name for p in marks.iterdir() if not p.name.startswith("started")) == []
-        assert len(list(marks.glob("started-*"))) == 2, "a task started after the Ctrl-C"
-    finally:
-        if parent.poll() is None:
-            os.killpg(parent.pid, signal.SIGKILL)
-            parent.wait()
 
 
 @pytest.mark.skipif(sys.platform == "win32", reason="POSIX parent ids")

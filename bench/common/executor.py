@@ -10,8 +10,7 @@ say), is handed to every task: ``fn(task, context)``.
 
 A process pool's workers die with their parent, SIGKILL included: on Linux the kernel kills
 them when it exits (``PR_SET_PDEATHSIG``), and everywhere a thread in each worker exits it once
-its parent is gone. Ctrl-C is the parent's to answer: it ends the workers, which never see it
-(:func:`pipeline.lifetime.leave_ctrl_c_to_parent`).
+its parent is gone.
 """
 
 from __future__ import annotations
@@ -24,7 +23,7 @@ from typing import Any, TypeVar
 
 from tqdm import tqdm
 
-from pipeline.lifetime import exit_with_parent, leave_ctrl_c_to_parent
+from pipeline.lifetime import exit_with_parent
 
 T = TypeVar("T")
 
@@ -41,7 +40,6 @@ _worker_context: Any = None
 def _start_worker(parent_pid: int, setup: Callable[..., Any] | None, setup_args: tuple) -> None:
     global _worker_context
     exit_with_parent(parent_pid)
-    leave_ctrl_c_to_parent()
     _worker_context = setup(*setup_args) if setup is not None else None
 
 
@@ -99,13 +97,8 @@ class TaskPool:
     def __enter__(self) -> TaskPool:
         return self
 
-    def __exit__(self, exc_type: type[BaseException] | None, *exc: object) -> None:
+    def __exit__(self, *exc: object) -> None:
         if self._pool is not None:
-            if exc_type is not None and issubclass(exc_type, KeyboardInterrupt):
-                # Ctrl-C: end the workers now (their tasks' outputs are atomic, a killed run's
-                # temporary files are cleaned by the next); public only from Python 3.14 on
-                for process in list((self._pool._processes or {}).values()):
-                    process.terminate()
             self._pool.shutdown(wait=True, cancel_futures=True)
         if self._dask is not None:
             self._dask.close()
