@@ -28,9 +28,8 @@ def shown_value(value: object) -> str:
     """A value as a one-line refusal quotes it: as written, but an integer of over 20 digits by
     its length (a 400-digit number would fill the line)."""
     text = str(value)
-    if isinstance(value, int) and len(text.lstrip("-")) > 20:
-        return f"an integer of {len(text.lstrip('-'))} digits"
-    return text
+    digits = len(text.lstrip("-"))
+    return f"an integer of {digits} digits" if isinstance(value, int) and digits > 20 else text
 
 
 #: Deepest nesting a small JSON settings file (profile, observations) may have.
