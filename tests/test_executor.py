@@ -1,5 +1,5 @@
-"""The task pool: a per-worker context handed to every task, and workers that die with their
-parent, SIGKILL included."""
+"""The task pool: a per-worker context handed to every task, workers that die with their
+parent, SIGKILL included, and Ctrl-C answered by the parent alone."""
 
 import os
 import signal
@@ -123,6 +123,62 @@ def test_workers_die_when_their_parent_is_killed(tmp_path, parent_code):
         for mark in marks.iterdir():
             if _alive(int(mark.name)):
                 os.kill(int(mark.name), signal.SIGKILL)
+
+
+INTERRUPTED_PARENT = """
+import sys, time
+from pathlib import Path
+
+from bench.common.executor import TaskPool
+
+
+def work(task, _context):
+    Path(sys.argv[1], f"started-{task}").touch()
+    end = time.monotonic() + 3
+    while time.monotonic() < end:
+        time.sleep(0.01)
+    Path(sys.argv[1], f"finished-{task}").touch()
+
+
+if __name__ == "__main__":
+    try:
+        with TaskPool(2) as pool:
+            list(pool.map(work, range(8), progress=False))
+    except KeyboardInterrupt:
+        sys.exit(130)
+"""
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals")
+def test_ctrl_c_lets_running_tasks_finish_and_starts_no_other(tmp_path):
+    """Ctrl-C reaches the whole group. A worker that took it as its task's error went on to the
+    next task in whatever state the interruption left (a study cell was written after Ctrl-C
+    with other column types); now the tasks running finish whole and no queued one starts."""
+    script = tmp_path / "parent.py"
+    script.write_text(textwrap.dedent(INTERRUPTED_PARENT))
+    marks = tmp_path / "marks"
+    marks.mkdir()
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    parent = subprocess.Popen(
+        [sys.executable, str(script), str(marks)], env=env, start_new_session=True
+    )
+    try:
+        deadline = time.monotonic() + 60
+        while len(list(marks.glob("started-*"))) < 2:
+            assert time.monotonic() < deadline, "the workers never started"
+            assert parent.poll() is None, "the parent ended early"
+            time.sleep(0.01)
+        os.killpg(parent.pid, signal.SIGINT)  # a terminal's Ctrl-C
+        assert parent.wait(timeout=60) == 130
+        started = sorted(p.name.split("-")[1] for p in marks.glob("started-*"))
+        finished = sorted(p.name.split("-")[1] for p in marks.glob("finished-*"))
+        assert len(started) == 2, f"a task started after the Ctrl-C: {started}"
+        assert finished == started, f"a running task was cut: {started} {finished}"
+    finally:
+        if parent.poll() is None:
+            os.killpg(parent.pid, signal.SIGKILL)
+            parent.wait()
 
 
 @pytest.mark.skipif(sys.platform == "win32", reason="POSIX parent ids")

@@ -10,7 +10,9 @@ say), is handed to every task: ``fn(task, context)``.
 
 A process pool's workers die with their parent, SIGKILL included: on Linux the kernel kills
 them when it exits (``PR_SET_PDEATHSIG``), and everywhere a thread in each worker exits it once
-its parent is gone.
+its parent is gone. Ctrl-C is the parent's to answer: a worker finishes the task it is running
+and starts no other (:func:`pipeline.lifetime.leave_ctrl_c_to_parent`); to stop at once, end
+the parent (``kill``): its workers die with it and the next run cleans up.
 """
 
 from __future__ import annotations
@@ -23,7 +25,7 @@ from typing import Any, TypeVar
 
 from tqdm import tqdm
 
-from pipeline.lifetime import exit_with_parent
+from pipeline.lifetime import ctrl_c_seen, exit_with_parent, leave_ctrl_c_to_parent
 
 T = TypeVar("T")
 
@@ -40,10 +42,13 @@ _worker_context: Any = None
 def _start_worker(parent_pid: int, setup: Callable[..., Any] | None, setup_args: tuple) -> None:
     global _worker_context
     exit_with_parent(parent_pid)
+    leave_ctrl_c_to_parent()
     _worker_context = setup(*setup_args) if setup is not None else None
 
 
 def _run_in_worker(fn: Callable[[T, Any], Any], task: T) -> Any:
+    if ctrl_c_seen():  # a task already queued when Ctrl-C came: not started
+        raise KeyboardInterrupt
     return fn(task, _worker_context)
 
 

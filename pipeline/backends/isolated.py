@@ -205,7 +205,8 @@ def _serve(conn: Connection) -> None:
 
 
 if __name__ == "__main__":
-    from pipeline.lifetime import exit_with_parent
+    from pipeline.lifetime import exit_with_parent, leave_ctrl_c_to_parent
 
     exit_with_parent(int(sys.argv[2]))
+    leave_ctrl_c_to_parent()
     _serve(Connection(int(sys.argv[1])))
