@@ -37,15 +37,22 @@ def pair_config():
     )
 
 
+_BUILT: dict[str, object] = {}  # this process's folders by name (built_once)
+
+
 def built_once(tmp_path_factory, worker_id: str, name: str, build):
     """The folder ``build(folder)`` writes, built once per test run: under xdist the first
     worker to ask builds it in the run's folder shared by all workers, under a lock; the others
-    wait and reuse it. Callers that write into it take a copy."""
+    wait and reuse it; within one process a second call returns the folder at once. Callers
+    that write into it take a copy."""
     import fcntl
 
+    if name in _BUILT:
+        return _BUILT[name]
     if worker_id == "master":  # no xdist: nothing to share
         folder = tmp_path_factory.mktemp(name) / "out"
         build(folder)
+        _BUILT[name] = folder
         return folder
     shared = tmp_path_factory.getbasetemp().parent / name  # this run's, all workers'
     shared.mkdir(exist_ok=True)
@@ -54,6 +61,7 @@ def built_once(tmp_path_factory, worker_id: str, name: str, build):
         if not (shared / "done").exists():
             build(shared / "out")
             (shared / "done").touch()
+    _BUILT[name] = shared / "out"
     return shared / "out"
 
 
@@ -85,12 +93,14 @@ def clean_quick_study(tmp_path_factory, worker_id):
     return built_once(tmp_path_factory, worker_id, "clean-quick-study", run_quick_study)
 
 
-@pytest.fixture
-def figures_not_drawn(monkeypatch):
-    """Figures written as a 1-pixel PNG without drawing them, for tests of what a command
-    accepts or refuses: drawing is most of a small run's time, and the figures themselves are
-    tested in test_figures.py, test_replot.py and beside each command."""
+def drawn_only(monkeypatch, *names: str) -> None:
+    """Figures written as a 1-pixel PNG without drawing them, except the files whose name
+    matches one of ``names`` (glob patterns), which a test checks: drawing is most of a small
+    run's time, and the figures themselves are tested in test_figures.py, test_replot.py and
+    beside each command."""
+    import fnmatch
     import io
+    import os
 
     import numpy as np
     from matplotlib.figure import Figure
@@ -99,8 +109,13 @@ def figures_not_drawn(monkeypatch):
     buffer = io.BytesIO()
     imsave(buffer, np.zeros((1, 1)), format="png")
     pixel = buffer.getvalue()
+    draw = Figure.savefig
 
     def savefig(self, fname, *args, **kwargs):
+        name = "" if hasattr(fname, "write") else os.path.basename(os.fspath(fname))
+        # figures.save writes through a temporary ".<name>.<run>-<pid>.tmp-XXXX.png" first
+        if any(fnmatch.fnmatch(name, p) or fnmatch.fnmatch(name, f".{p}.*") for p in names):
+            return draw(self, fname, *args, **kwargs)
         if hasattr(fname, "write"):
             fname.write(pixel)
         else:
@@ -108,3 +123,10 @@ def figures_not_drawn(monkeypatch):
                 file.write(pixel)
 
     monkeypatch.setattr(Figure, "savefig", savefig)
+
+
+@pytest.fixture
+def figures_not_drawn(monkeypatch):
+    """Figures written as a 1-pixel PNG without drawing them (:func:`drawn_only`), for tests
+    of what a command accepts or refuses."""
+    drawn_only(monkeypatch)

@@ -8,6 +8,7 @@ import json
 import numpy as np
 import pandas as pd
 import pytest
+from conftest import drawn_only
 
 from bench.evaluate.pareto import pareto_front
 from pipeline.presets import PRESETS, get_pipeline
@@ -23,9 +24,11 @@ def test_pareto_front_keeps_only_undominated_points():
 
 
 @pytest.mark.slow
-def test_compare_writes_a_report_with_every_variant(rendered_pair, tmp_path):
+def test_compare_writes_a_report_with_every_variant(rendered_pair, tmp_path, monkeypatch):
     from bench.evaluate.compare import run_compare
     from bench.evaluate.sweep_config import QUICK_SWEEP
+
+    drawn_only(monkeypatch, "pareto.png", "sweeps.png", "grid-*.png")  # the report's figures
 
     sweep = dataclasses.replace(
         QUICK_SWEEP, alphas_deg=(0.0, 90.0), phis_deg=(0.0,), lightings=("lab",), images=3
@@ -323,30 +326,55 @@ def test_the_sweeps_refuse_a_family_a_backend_cannot_detect():
     assert paper.detector.dictionary == "apriltag_25h9"  # the sweep's family replaces its own
 
 
-@pytest.mark.slow
-@pytest.mark.usefixtures("figures_not_drawn")
-def test_a_peer_runs_in_every_part_of_compare(rendered_pair, tmp_path):
+def peer_compare(tmp_path_factory, worker_id, rendered_pair):
+    """(folder, summary) of ``compare`` of fast (the project's pipeline beside the peer: half
+    of paper's work on the pair's frames) and locus on a copy of the rendered pair, figures
+    not drawn, run once per test run: the report in ``folder / "report"``, each
+    pipeline's scores beside the copy in ``folder / "data" / "scores"``. Read, never written:
+    :func:`test_a_peer_runs_in_every_part_of_compare` reads the report, test_score_backends'
+    locus test the scores of locus (``score_dataset``'s, as ``score`` writes them)."""
+    import shutil
+
+    from conftest import built_once
+
     from bench.evaluate.compare import run_compare
     from bench.evaluate.sweep_config import QUICK_SWEEP
+
+    def build(folder):
+        data = folder / "data"  # the pair's files only: the session's copy may hold scores
+        shutil.copytree(rendered_pair, data, ignore=shutil.ignore_patterns("scores", "compare"))
+        sweep = dataclasses.replace(
+            QUICK_SWEEP, alphas_deg=(0.0,), phis_deg=(30.0,), lightings=("lab",),
+            blur_px=(0.0,), read_noise_e=(3.0,), seeds=1, images=2,
+        )  # fmt: skip
+        variants = [PRESETS["fast"], PRESETS["locus"]]
+        with pytest.MonkeyPatch.context() as monkeypatch:
+            drawn_only(monkeypatch)
+            summary = run_compare(
+                data, variants, folder / "report", sweep, speed_frames=2, speed_rounds=3
+            )
+        summary.to_pickle(folder / "summary.pkl")  # the frame returned, dtypes and all
+
+    folder = built_once(tmp_path_factory, worker_id, "peer-compare", build)
+    return folder, pd.read_pickle(folder / "summary.pkl")
+
+
+@pytest.mark.slow
+def test_a_peer_runs_in_every_part_of_compare(rendered_pair, tmp_path_factory, worker_id):
     from pipeline.backends import available
 
     if not available("locus"):
         pytest.skip("locus-tag is not installed")
-    sweep = dataclasses.replace(
-        QUICK_SWEEP, alphas_deg=(0.0,), phis_deg=(30.0,), lightings=("lab",), blur_px=(0.0,),
-        read_noise_e=(3.0,), seeds=1, images=2,
-    )  # fmt: skip
-    out = tmp_path / "report"
-    variants = [PRESETS["paper"], PRESETS["locus"]]
-    summary = run_compare(rendered_pair, variants, out, sweep, speed_frames=2, speed_rounds=3)
+    folder, summary = peer_compare(tmp_path_factory, worker_id, rendered_pair)
+    out = folder / "report"
     locus = summary.set_index("pipeline").loc["locus"]
     assert locus["fps"] > 0 and locus["recall"] > 0.9 and np.isfinite(locus["own_rot_err_deg"])
     sweeps = pd.read_csv(out / "sweeps.csv").set_index("pipeline")
-    assert sweeps.loc["paper", "own_rot_err_deg"].isna().all()
+    assert sweeps.loc["fast", "own_rot_err_deg"].isna().all()
     assert np.isfinite(sweeps.loc["locus", "own_rot_err_deg"]).any()
     assert (sweeps["backend_failures"] == 0).all()
     leads = pd.read_csv(out / "leaders.csv").set_index("measure")
-    assert leads.loc["fps", "best_peer"] == "locus" and leads.loc["fps", "best_project"] == "paper"
+    assert leads.loc["fps", "best_peer"] == "locus" and leads.loc["fps", "best_project"] == "fast"
     report = (out / "report.md").read_text()
     assert "## Who leads" in report and "- locus: no failed frames" in report
     assert "](grids/locus-grid-outdoor-lab.png)" in report
@@ -440,22 +468,23 @@ def test_score_and_compare_report_a_pipeline_that_refuses_every_sample(
         "bench.evaluate.compare.time_pipelines", lambda runs, named, rounds: _timing(named, 10.0)
     )
     report = tmp_path / "report"
-    argv = ["compare", str(dataset), "--pipelines", "paper,naive", "--quick", "--out", str(report)]
+    # beside it a pipeline that answers: fast, half of paper's work on the pair's frames
+    argv = ["compare", str(dataset), "--pipelines", "fast,naive", "--quick", "--out", str(report)]
     assert main([*argv, "--speed-frames", "2", "--speed-rounds", "3"]) == 0
     out = capsys.readouterr().out
     assert "naive:    10.0 frames/s (9.0-11.0), refused all 2 samples, no rates" in out
-    assert "speed lead of paper, naive: a tie, within the spread across rounds" in out
+    assert "speed lead of fast, naive: a tie, within the spread across rounds" in out
     assert f"refused_reason in {dataset / 'scores' / 'naive' / 'samples.csv'}" in out
-    assert "note: paper" not in out  # it refused nothing and read the markers
+    assert "note: fast" not in out  # it refused nothing and read the markers
     summary = pd.read_csv(report / "summary.csv").set_index("pipeline")
     assert summary.loc["naive", ["samples", "refused_samples"]].tolist() == [2, 2]
-    assert np.isnan(summary.loc["naive", "correct_rate"]) and summary.loc["paper", "recall"] > 0.9
+    assert np.isnan(summary.loc["naive", "correct_rate"]) and summary.loc["fast", "recall"] > 0.9
     # a scored table has no column the refused table lacks (SCORED_COLUMNS is complete)
-    scored = pd.read_csv(dataset / "scores" / "paper" / "samples.csv")
+    scored = pd.read_csv(dataset / "scores" / "fast" / "samples.csv")
     assert set(scored) <= set(table)
     assert "- naive: refused all 2 samples" in (report / "report.md").read_text()
     leads = pd.read_csv(report / "leaders.csv").set_index("measure")
-    assert leads.loc["fps", "leader"] == "paper, naive" and leads.loc["recall", "leader"] == "paper"
+    assert leads.loc["fps", "leader"] == "fast, naive" and leads.loc["recall", "leader"] == "fast"
 
 
 def _timing(pipelines, fps: float):

@@ -132,12 +132,16 @@ def test_a_video_that_starts_in_contact_is_refused(sample_video, tmp_path, capsy
     ]
     start = int(np.argmax(rise))
     assert rise[start] > 2.0  # the labels say a whisker moves 2+ mm in those frames
-    video, camera = _cut(sample_video, tmp_path, range(start, start + 30))
+    # those frames alone: the baseline check reads a video's first 10 (baseline_frames) frames,
+    # each detected on its own (the paper preset, detect's default, searches the full frame), so
+    # frames past them change nothing in the refusal
+    assert PRESETS["paper"].baseline_frames == window
+    video, camera = _cut(sample_video, tmp_path, range(start, start + window))
     code, err = _detect(capsys, str(video), "--camera", str(camera), "--out", str(tmp_path / "o"))
     assert code == 2 and len(err.strip().splitlines()) == 1
     assert "no no-contact frames" in err and not (tmp_path / "o").exists()
     # the same video from its free-air start is fine
-    fine, _ = _cut(sample_video, tmp_path, range(0, start + 30))
+    fine, _ = _cut(sample_video, tmp_path, range(0, start + window))
     assert _detect(capsys, str(fine), "--camera", str(camera), "--out", str(tmp_path / "p"))[0] == 0
 
 
@@ -201,9 +205,10 @@ def test_score_flags_a_sample_without_no_contact_frames(sample_video, tmp_path) 
     deflection = labels.pivot(index="frame", columns="whisker", values="deflection_mm").to_numpy()
     rise = [np.ptp(deflection[s : s + 10], axis=0).max() for s in range(len(deflection) - 10)]
     start = int(np.argmax(rise))
-    video, _ = _cut(sample_video, tmp_path, range(start, len(deflection)))
+    end = start + PRESETS["paper"].baseline_frames  # what the refusal reads (see above)
+    video, _ = _cut(sample_video, tmp_path, range(start, end))
     shutil.copy(video, folder / "video.mp4")
-    cut = labels[labels["frame"] >= start].copy()
+    cut = labels[labels["frame"].between(start, end - 1)].copy()
     cut["frame"] -= start
     cut.to_parquet(folder / "labels.parquet")
     _reseal(dataset, sample_video.name)

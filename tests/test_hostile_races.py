@@ -92,6 +92,7 @@ def test_two_studies_started_together_on_one_out(tmp_path, variant):
     """With other settings, the second study is refused whether or not the first is done."""
     out = tmp_path / "run"
     base = ["detectability", "--sizes", "13.2", "--alphas", "0,85", "--phis", "0", "--out", out]
+    base += ["--workers", "1"]  # the race is on the folder, claimed by the parent: no pool
     results = _together([*base, "--images", "4"], [*base, "--images", "6"])
     assert sorted(code for _, code, _ in results) == [0, 2], results
     _one_refused(results, out)

@@ -126,6 +126,7 @@ def test_config_refuses(change, field):
 
 @pytest.mark.start_early
 @pytest.mark.slow
+@pytest.mark.usefixtures("figures_not_drawn")  # laid out and drawn on the canvas, not saved
 def test_quick_ladder_end_to_end_and_resumes(tmp_path):
     from bench.ladder.run import run_ladder
 

@@ -124,13 +124,16 @@ def _damage(folder: Path, name: str, text: str) -> None:
 
 @pytest.mark.slow
 def test_a_damaged_table_is_refused_and_no_folder_named_is_touched(tmp_path, capsys):
-    good, bad = _copy("ladder", tmp_path), _copy("compare/default", tmp_path)
-    (good / "ladder.png").write_bytes(b"stale")  # would be redrawn, were bad not refused
+    """The good folder's figure is drawn (staged) before the bad one's fails: a score grid,
+    drawn in about a second (the ladder's takes ten times that; its config damaged below)."""
+    good, bad = _copy("indoor", tmp_path), _copy("compare/default", tmp_path)
+    (good / "grid-indoor-sun.png").write_bytes(b"stale")  # would be redrawn, were bad not refused
     summary = (bad / "summary.csv").read_text().splitlines()
     _damage(bad, "summary.csv", "\n".join(line.split(",", 1)[1] for line in summary) + "\n")
     before = {**_files(good), **{f"bad/{k}": v for k, v in _files(bad).items()}}
     _refused(["replot", str(good), str(bad)], capsys, "is damaged or from another version")
     assert {**_files(good), **{f"bad/{k}": v for k, v in _files(bad).items()}} == before
     assert not [p for p in [*good.iterdir(), *bad.iterdir()] if ".tmp-" in p.name]
-    _damage(good, "config.json", "[1]")
-    _refused(["replot", str(good)], capsys, "ladder: a table or its config is damaged")
+    ladder = _copy("ladder", tmp_path)
+    _damage(ladder, "config.json", "[1]")
+    _refused(["replot", str(ladder)], capsys, "ladder: a table or its config is damaged")

@@ -215,18 +215,22 @@ PLAIN_OPENCV = Path(__file__).resolve().parents[1] / "examples" / "results_file"
 @pytest.mark.slow
 @pytest.mark.usefixtures("figures_not_drawn")  # the scores are the answer
 def test_plain_opencv_results_score_as_the_equivalent_built_in_pipeline(
-    rendered_pair, tmp_path
+    rendered_pair, tmp_path, tmp_path_factory, worker_id
 ) -> None:
     """OpenCV's defaults are ``naive``'s detector (full frame, windows 3-23, no refinement):
     its results file, scored with ``naive``'s later stages, gets ``naive``'s scores."""
     import subprocess
     import sys
 
+    from test_plugins import plugin_compare
+
     results = tmp_path / "plain.csv"
     argv = [sys.executable, str(PLAIN_OPENCV), str(rendered_pair), str(results)]
     subprocess.run(argv, check=True)
-    built_in, theirs = tmp_path / "naive", tmp_path / "theirs"
-    assert main(["score", str(rendered_pair), "--pipeline", "naive", "--out", str(built_in)]) == 0
+    # naive's scores on the pair (score_dataset's, as `score --pipeline naive` writes them),
+    # from the compare of test_plugins, which scores naive on a copy of the pair: scored once
+    folder, _, _ = plugin_compare(tmp_path_factory, worker_id, rendered_pair)
+    built_in, theirs = folder / "data" / "scores" / "naive", tmp_path / "theirs"
     assert _score(rendered_pair, results, theirs, "--pipeline", "naive") == 0
     a, b = _samples(built_in), _samples(theirs)
     assert (a["recall"] > 0.9).all()

@@ -74,6 +74,7 @@ def test_score_refuses_a_family_the_backend_cannot_detect_before_any_work(tmp_pa
 
 
 @pytest.mark.slow
+@pytest.mark.usefixtures("figures_not_drawn")  # the scores and the warning are the answer
 def test_frames_a_backend_crashed_on_are_counted_and_reported(
     rendered_pair, tmp_path, monkeypatch, capsys
 ) -> None:
@@ -106,10 +107,13 @@ def test_frames_a_backend_crashed_on_are_counted_and_reported(
 
 @pytest.mark.slow
 @pytest.mark.skipif(not available("locus"), reason="locus-tag not installed (the peers extra)")
-def test_locus_own_pose_is_scored_on_a_render(rendered_pair, tmp_path) -> None:
-    from bench.evaluate.score import score_dataset
+def test_locus_own_pose_is_scored_on_a_render(rendered_pair, tmp_path_factory, worker_id) -> None:
+    from test_compare import peer_compare
 
-    table = score_dataset(rendered_pair, PRESETS["locus"], tmp_path / "scores")
+    # score_dataset's table of locus on the pair, in the compare of fast and locus that
+    # test_compare's peer test reads: scored once for both
+    folder, _ = peer_compare(tmp_path_factory, worker_id, rendered_pair)
+    table = pd.read_csv(folder / "data" / "scores" / "locus" / "samples.csv")
     assert (table["failed_frames"] == 0).all() and (table["recall"] > 0.9).all()
     for column in ("own_rot_err_deg", "own_trans_err_mm", "rot_err_deg", "trans_err_mm"):
         assert np.isfinite(table[column]).all(), column

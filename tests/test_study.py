@@ -24,9 +24,30 @@ def run(tmp_path, name="run", **kwargs):
     return config, out, run_study(config, out, progress=False)
 
 
+@pytest.fixture(scope="session")
+def tiny_study(tmp_path_factory, worker_id, variant):
+    """The TINY study, run once per test run with its figures drawn: read, never written (the
+    tests that write into it take a copy, :func:`tiny_copy`)."""
+    from conftest import built_once
+
+    def build(out):
+        run_study(StudyConfig(**TINY), out, progress=False)
+
+    return built_once(tmp_path_factory, worker_id, "tiny-study", build)
+
+
+def tiny_copy(tiny_study, tmp_path):
+    """A copy of the shared TINY study to write into: (config, folder, its manifest)."""
+    import shutil
+
+    out = tmp_path / "run"
+    shutil.copytree(tiny_study, out)
+    return StudyConfig(**TINY), out, json.loads((out / "manifest.json").read_text())
+
+
 @pytest.mark.slow
-def test_outputs(variant, tmp_path):
-    config, out, manifest = run(tmp_path)
+def test_outputs(variant, tiny_study):
+    config, out = StudyConfig(**TINY), tiny_study
     for name in (
         "images.parquet",
         "summary.csv",
@@ -78,8 +99,9 @@ def test_crops_start_on_the_mjpeg_block_grid(variant):
 
 
 @pytest.mark.slow
-def test_same_seed_same_summary_other_seed_other_images(variant, tmp_path):
-    _, a, _ = run(tmp_path, "a")
+@pytest.mark.usefixtures("figures_not_drawn")  # the tables are the answer; drawn in test_outputs
+def test_same_seed_same_summary_other_seed_other_images(variant, tiny_study, tmp_path):
+    a = tiny_study  # another run of the same config (in another process under xdist)
     _, b, _ = run(tmp_path, "b")
     _, c, _ = run(tmp_path, "c", seed=1)
     assert (a / "summary.csv").read_bytes() == (b / "summary.csv").read_bytes()
@@ -88,8 +110,9 @@ def test_same_seed_same_summary_other_seed_other_images(variant, tmp_path):
 
 
 @pytest.mark.slow
-def test_resume_skips_finished_cells_and_gives_the_same_answer(variant, tmp_path):
-    config, out, first = run(tmp_path)
+@pytest.mark.usefixtures("figures_not_drawn")  # the tables are the answer; drawn in test_outputs
+def test_resume_skips_finished_cells_and_gives_the_same_answer(variant, tiny_study, tmp_path):
+    config, out, first = tiny_copy(tiny_study, tmp_path)
     summary = (out / "summary.csv").read_bytes()
     (out / "cells" / f"{config.cells()[1].output_name(1.0)}.parquet").unlink()
     second = run_study(config, out, progress=False)
@@ -99,6 +122,7 @@ def test_resume_skips_finished_cells_and_gives_the_same_answer(variant, tmp_path
 
 
 @pytest.mark.slow
+@pytest.mark.usefixtures("figures_not_drawn")  # the tables are the answer; drawn in test_outputs
 def test_a_crash_leaves_no_half_written_file_and_the_rerun_finishes(variant, tmp_path, monkeypatch):
     config = StudyConfig(**TINY)
     out = tmp_path / "crash"
@@ -121,13 +145,14 @@ def test_a_crash_leaves_no_half_written_file_and_the_rerun_finishes(variant, tmp
 
 
 @pytest.mark.slow
-def test_another_config_in_the_same_folder_is_refused(variant, tmp_path):
-    _, out, _ = run(tmp_path)
+def test_another_config_in_the_same_folder_is_refused(variant, tiny_study, tmp_path):
+    _, out, _ = tiny_copy(tiny_study, tmp_path)
     with pytest.raises(StudyConfigError, match="another configuration"):
         run_study(StudyConfig(**{**TINY, "images": 7}), out, progress=False)
 
 
 @pytest.mark.slow
+@pytest.mark.usefixtures("figures_not_drawn")  # not a test of figures: test_outputs
 def test_save_images(variant, tmp_path):
     config = StudyConfig(**{**TINY, "alphas_deg": (0.0,), "phis_deg": (0.0,), "images": 3})
     out = tmp_path / "saved"
@@ -150,6 +175,7 @@ def test_wilson_settles_a_cell_at_the_first_count_that_excludes_095():
 
 
 @pytest.mark.slow
+@pytest.mark.usefixtures("figures_not_drawn")  # not a test of figures: test_outputs
 def test_adaptive_sampling_stops_when_settled(variant, tmp_path):
     """A sharp frontal 13.2 mm marker is always found: 80 images settle it; a marker past the
     image circle's reach is never found: 10 do."""
@@ -178,6 +204,7 @@ def test_refinement_bisects_between_the_last_pass_and_the_first_fail():
 
 
 @pytest.mark.slow
+@pytest.mark.usefixtures("figures_not_drawn")  # not a test of figures: test_outputs
 def test_band_renders_each_geometry_once_for_every_scale(variant, tmp_path, monkeypatch):
     real, renders = cells.render_cell, []
 

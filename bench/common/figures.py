@@ -87,18 +87,21 @@ LARGE_MARKER_PX = 12.0
 
 
 def label_points(ax: plt.Axes, xs: Sequence[float], ys: Sequence[float], names: Sequence[str],
-                 fontsize: float = 7,
-                 avoid: Sequence[tuple[float, float]] = ()) -> None:  # fmt: skip
+                 fontsize: float = 7, avoid: Sequence[tuple[float, float]] = (),
+                 draw: bool = True) -> None:  # fmt: skip
     """Name each point beside it, no name over another name or a point: points that coincide
     on screen share one name ("a, b"); a name that would cover one already placed, another
     point, a large marker at an ``avoid`` point (x, y) or the axes' edge takes the first free
     spot of :data:`LABEL_SPOTS` (the first spot if none is free).
-    The figure is drawn once first, so that its layout has settled the axes' scales."""
+    The figure is drawn first, so that its layout has settled the axes' scales; ``draw=False``
+    where the caller drew it after its last change (panels named in turn: names stay out of
+    the layout, so one draw serves them all)."""
     import numpy as np
     from matplotlib.transforms import Bbox
 
     fig = ax.figure
-    fig.canvas.draw()
+    if draw:
+        fig.canvas.draw()
     renderer = fig.canvas.get_renderer()
     data = np.column_stack([np.asarray(xs, float), np.asarray(ys, float)])
     screen = ax.transData.transform(data) if len(data) else np.empty((0, 2))

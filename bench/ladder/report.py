@@ -159,6 +159,7 @@ def plot(
     legend_outside(fig, list(labelled.values()), list(labelled), fontsize=8)
     title = "Fidelity ladder: outcome error against cost (each rung against the reference)"
     fig.suptitle(titled(title, options))
+    fig.canvas.draw()  # once: the names stay out of the layout (label_points)
     for ax, xs, ys, names, large in named:
-        label_points(ax, xs, ys, names, avoid=large)
+        label_points(ax, xs, ys, names, avoid=large, draw=False)
     save(fig, path)
