@@ -84,6 +84,44 @@ def rendered_pair(tmp_path_factory, variant, pair_config, worker_id):
     return out
 
 
+def copy_pair(rendered_pair, dest):
+    """A copy of the rendered pair's own files at ``dest`` (without the score and compare
+    folders other tests wrote into the session's copy); ``dest``."""
+    import shutil
+
+    return shutil.copytree(rendered_pair, dest, ignore=shutil.ignore_patterns("scores", "compare"))
+
+
+def compare_once(tmp_path_factory, worker_id, rendered_pair, name, methods, sweep, drawn=(),
+                 prepare=None, cwd=None):  # fmt: skip
+    """(folder, summary) of ``run_compare`` of ``methods`` (callable: folder -> the methods) on
+    a copy of the pair, built once per run (:func:`built_once`): the report in
+    ``folder / "report"``, each method's scores beside the copy in ``folder / "data" /
+    "scores"``, the summary returned as it was (dtypes and all). Only the figures named by
+    ``drawn`` are drawn (:func:`drawn_only`); ``prepare(folder)`` runs first (files the methods
+    name), ``cwd`` is the folder the compare runs in. Read, never written."""
+    import pandas as pd
+
+    from bench.evaluate.compare import run_compare
+
+    def build(folder):
+        copy_pair(rendered_pair, folder / "data")
+        if prepare is not None:
+            prepare(folder)
+        with pytest.MonkeyPatch.context() as monkeypatch:
+            if cwd is not None:
+                monkeypatch.chdir(cwd)
+            drawn_only(monkeypatch, *drawn)
+            summary = run_compare(
+                folder / "data", methods(folder), folder / "report", sweep,
+                speed_frames=2, speed_rounds=3,
+            )  # fmt: skip
+        summary.to_pickle(folder / "summary.pkl")
+
+    folder = built_once(tmp_path_factory, worker_id, name, build)
+    return folder, pd.read_pickle(folder / "summary.pkl")
+
+
 @pytest.fixture(scope="session")
 def clean_quick_study(tmp_path_factory, worker_id):
     """:data:`quick_study.QUICK_STUDY` run once, uninterrupted, for the whole run: the

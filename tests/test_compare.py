@@ -329,34 +329,21 @@ def test_the_sweeps_refuse_a_family_a_backend_cannot_detect():
 def peer_compare(tmp_path_factory, worker_id, rendered_pair):
     """(folder, summary) of ``compare`` of fast (the project's pipeline beside the peer: half
     of paper's work on the pair's frames) and locus on a copy of the rendered pair, figures
-    not drawn, run once per test run: the report in ``folder / "report"``, each
-    pipeline's scores beside the copy in ``folder / "data" / "scores"``. Read, never written:
+    not drawn, run once per test run (:func:`conftest.compare_once`). Read, never written:
     :func:`test_a_peer_runs_in_every_part_of_compare` reads the report, test_score_backends'
     locus test the scores of locus (``score_dataset``'s, as ``score`` writes them)."""
-    import shutil
+    from conftest import compare_once
 
-    from conftest import built_once
-
-    from bench.evaluate.compare import run_compare
     from bench.evaluate.sweep_config import QUICK_SWEEP
 
-    def build(folder):
-        data = folder / "data"  # the pair's files only: the session's copy may hold scores
-        shutil.copytree(rendered_pair, data, ignore=shutil.ignore_patterns("scores", "compare"))
-        sweep = dataclasses.replace(
-            QUICK_SWEEP, alphas_deg=(0.0,), phis_deg=(30.0,), lightings=("lab",),
-            blur_px=(0.0,), read_noise_e=(3.0,), seeds=1, images=2,
-        )  # fmt: skip
-        variants = [PRESETS["fast"], PRESETS["locus"]]
-        with pytest.MonkeyPatch.context() as monkeypatch:
-            drawn_only(monkeypatch)
-            summary = run_compare(
-                data, variants, folder / "report", sweep, speed_frames=2, speed_rounds=3
-            )
-        summary.to_pickle(folder / "summary.pkl")  # the frame returned, dtypes and all
-
-    folder = built_once(tmp_path_factory, worker_id, "peer-compare", build)
-    return folder, pd.read_pickle(folder / "summary.pkl")
+    sweep = dataclasses.replace(
+        QUICK_SWEEP, alphas_deg=(0.0,), phis_deg=(30.0,), lightings=("lab",), blur_px=(0.0,),
+        read_noise_e=(3.0,), seeds=1, images=2,
+    )  # fmt: skip
+    variants = [PRESETS["fast"], PRESETS["locus"]]
+    return compare_once(
+        tmp_path_factory, worker_id, rendered_pair, "peer-compare", lambda _: variants, sweep
+    )
 
 
 @pytest.mark.slow

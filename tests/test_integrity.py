@@ -14,6 +14,7 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
+from conftest import copy_pair
 
 from bench.common.manifest import sha256
 from bench.dataset.verify import DatasetIntegrityError, verify_dataset
@@ -31,7 +32,7 @@ OTHER_RUN = "0123456789ab"
 def data(rendered_pair, tmp_path):
     """A private copy of the rendered pair (without other tests' score folders)."""
     out = tmp_path / "data"
-    shutil.copytree(rendered_pair, out, ignore=shutil.ignore_patterns("scores", "compare"))
+    copy_pair(rendered_pair, out)
     return out
 
 

@@ -289,42 +289,32 @@ def _exact_results(dataset: Path, path: Path) -> Path:
 def plugin_compare(tmp_path_factory, worker_id, rendered_pair):
     """(folder, names, summary) of ``compare`` of naive, plain OpenCV as a detector plugin, a
     plugin that raises, the labels' exact corners as a results file and a branch finder, on a
-    copy of the rendered pair, run once per test run: the report in ``folder / "report"``,
-    each method's scores beside the copy in ``folder / "data" / "scores"``. Only the Pareto
-    chart is drawn. Read, never written: the compare test below reads the report,
-    test_results_file's plain-OpenCV test naive's scores (``score_dataset``'s, as ``score``
-    writes them)."""
+    copy of the rendered pair, run once per test run (:func:`conftest.compare_once`). Only the
+    Pareto chart is drawn, the one figure read (the untimed method beside the others). Read,
+    never written: the compare test below reads the report, test_results_file's plain-OpenCV
+    test naive's scores (``score_dataset``'s, as ``score`` writes them)."""
     import dataclasses
 
-    from conftest import built_once, drawn_only
+    from conftest import compare_once
 
-    from bench.evaluate.compare import run_compare
     from bench.evaluate.outside import parse_method
     from bench.evaluate.sweep_config import QUICK_SWEEP
 
-    def methods(folder: Path) -> list[str]:
+    def names(folder: Path) -> list[str]:
         return ["naive", f"plugin:{EXAMPLE_FILE}", f"plugin:{SAMPLE}:raises",
                 f"results:{folder / 'exact.csv'}", f"branch-plugin:{SAMPLE}:gap_six"]  # fmt: skip
 
-    def build(folder: Path) -> None:
-        dataset = folder / "data"  # scores go beside it; the session's copy may hold some
-        shutil.copytree(rendered_pair, dataset, ignore=shutil.ignore_patterns("scores", "compare"))
-        _exact_results(dataset, folder / "exact.csv")
-        sweep = dataclasses.replace(
-            QUICK_SWEEP, alphas_deg=(0.0,), phis_deg=(0.0,), lightings=("lab",),
-            blur_px=(0.0,), read_noise_e=(3.0,), seeds=1, images=2,
-        )  # fmt: skip
-        with pytest.MonkeyPatch.context() as monkeypatch:
-            monkeypatch.chdir(ROOT)  # the plugin named by its path from the root
-            drawn_only(monkeypatch, "pareto.png")  # the one figure read: the untimed beside
-            summary = run_compare(
-                dataset, [parse_method(n) for n in methods(folder)], folder / "report", sweep,
-                speed_frames=2, speed_rounds=3,
-            )  # fmt: skip
-        summary.to_pickle(folder / "summary.pkl")  # the frame returned, dtypes and all
-
-    folder = built_once(tmp_path_factory, worker_id, "plugin-compare", build)
-    return folder, methods(folder), pd.read_pickle(folder / "summary.pkl")
+    sweep = dataclasses.replace(
+        QUICK_SWEEP, alphas_deg=(0.0,), phis_deg=(0.0,), lightings=("lab",), blur_px=(0.0,),
+        read_noise_e=(3.0,), seeds=1, images=2,
+    )  # fmt: skip
+    folder, summary = compare_once(
+        tmp_path_factory, worker_id, rendered_pair, "plugin-compare",
+        lambda folder: [parse_method(n) for n in names(folder)], sweep, drawn=("pareto.png",),
+        prepare=lambda folder: _exact_results(folder / "data", folder / "exact.csv"),
+        cwd=ROOT,  # the plugin named by its path from the root
+    )  # fmt: skip
+    return folder, names(folder), summary
 
 
 @pytest.mark.start_early

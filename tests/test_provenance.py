@@ -9,6 +9,7 @@ import shutil
 from pathlib import Path
 
 import pytest
+from conftest import copy_pair
 
 from pipeline.presets import PRESETS
 from scenes.profile import load_profile
@@ -91,7 +92,7 @@ def test_score_records_every_sample_file(rendered_pair, tmp_path) -> None:
     from bench.evaluate.score import score_dataset
 
     data = tmp_path / "data"
-    shutil.copytree(rendered_pair, data, ignore=shutil.ignore_patterns("scores", "compare"))
+    copy_pair(rendered_pair, data)
     score_dataset(data, PIPELINE, tmp_path / "s")
     manifest = check_manifest(tmp_path / "s", "score")
     files = json.loads((data / "manifest.json").read_text())["files"]

@@ -22,6 +22,7 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
+from conftest import copy_pair
 from fake_dataset import make_dataset
 
 from bench.cli.main import main
@@ -431,7 +432,7 @@ def test_a_partial_dataset_rerun_keeps_the_other_samples(rendered_pair, pair_con
     from bench.dataset.verify import verify_dataset
 
     data = tmp_path / "data"
-    shutil.copytree(rendered_pair, data, ignore=shutil.ignore_patterns("scores", "compare"))
+    copy_pair(rendered_pair, data)
     both = json.loads((data / "manifest.json").read_text())["samples"]
     twin_only = dataclasses.replace(pair_config, branches=((),))
     manifest = run_dataset(twin_only, data, progress=False)
