@@ -8,69 +8,34 @@ moved by up to 0.8 px, as a detector's pixel-level corners would be.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import pytest
 
-from pipeline.refine import FAILURES, refine_corners_by_edges
-from renderers.printed import Photo, gradient, marker_albedo_image, photograph
-from scenes.camera import FisheyeCamera
-from scenes.conventions import make_T, rot_x, rot_y
-from scenes.marker import MarkerSpec
-from scenes.study import facing_rotation
-
-CAMERA = FisheyeCamera(
-    width_px=640, height_px=480, fx_px=500.0, fy_px=500.0, cx_px=319.5, cy_px=239.5
+from bench.evaluate.photos import outward as outward_offsets
+from bench.evaluate.prints import (
+    AFTER_CURVE,
+    BEFORE_CURVE,
+    CAMERA,
+    MODULES,
+    SPEC,
+    image_of,
+    pose,
+    prints,
 )
-SPEC = MarkerSpec("4x4_50", 7, 50.0)
-MODULES = 6
-SIDES_PX = {"large": (100, 170, 240), "small": (20, 30, 40)}
-#: (x, y) of the marker as fractions of its distance, tilts about y and x (deg)
-POSES = ((0.1, 0.05, 0.0, 0.0), (-0.15, 0.1, 25.0, 10.0), (0.05, -0.1, -15.0, 35.0))
-#: Blur before the transfer curve, as the camera twin makes it
-BEFORE_CURVE = {
-    "optics": (Photo(optics_sigma_px=1.0), None),
-    "uneven": (Photo(optics_sigma_px=1.0), (0.3, 1.0)),
-    "twin": (Photo(optics_sigma_px=1.2, full_well_e=6457, read_noise_e=2, jpeg_quality=80), None),
-}
-#: Blur after it, as cameras' processing adds
-AFTER_CURVE = {
-    "blur": (Photo(encoded_sigma_px=1.5), None),
-    "sharpen": (Photo(encoded_sigma_px=1.2, sharpen_amount=1.0, sharpen_sigma_px=1.5), None),
-    "jpeg": (Photo(encoded_sigma_px=1.0, jpeg_quality=75), (0.35, 1.0)),
-}
-
-
-def _pose(side_px: float, k: int) -> np.ndarray:
-    x, y, tilt_y, tilt_x = POSES[k]
-    z = CAMERA.fx_px * SPEC.size_mm / side_px
-    position = np.array([x * z, y * z, z])
-    c, s = math.cos(0.3 * k + 0.2), math.sin(0.3 * k + 0.2)  # turned in the marker's plane
-    R = facing_rotation(position) @ rot_y(math.radians(tilt_y)) @ rot_x(math.radians(tilt_x))
-    return make_T(R @ np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]), position)
+from pipeline.refine import FAILURES, refine_corners_by_edges
+from renderers.printed import Photo, marker_albedo_image, photograph
 
 
 @pytest.fixture(scope="module")
 def albedos() -> dict[str, list]:
-    return {
-        size: [
-            marker_albedo_image(
-                CAMERA, _pose(side, k), SPEC, int(0.6 * side) + 12, 4 if side > 60 else 8, k
-            )
-            for side in sides
-            for k in range(len(POSES))
-        ]
-        for size, sides in SIDES_PX.items()
-    }
+    return {size: prints(size) for size in ("large", "small")}
 
 
 def _score(albedos: list, photo: Photo, light, transfer: str) -> dict:
     """Corner errors (px), outward offsets (px, + outside the marker) and failures."""
     errors, outward, failures = [], [], []
     for i, (albedo, offset, truth) in enumerate(albedos):
-        illumination = None if light is None else gradient(albedo.shape, *light, 35.0 + 40 * i)
-        image = photograph(albedo, photo, illumination, np.random.default_rng(i))
+        image = image_of(i, albedo, photo, light)
         start = truth + np.random.default_rng(100 + i).uniform(-0.8, 0.8, (4, 2))
         corners, failure = refine_corners_by_edges(
             image, start, CAMERA, MODULES, offset, transfer=transfer
@@ -78,10 +43,8 @@ def _score(albedos: list, photo: Photo, light, transfer: str) -> dict:
         if failure:
             failures.append(failure)
             continue
-        out = truth - truth.mean(axis=0)
-        out /= np.linalg.norm(out, axis=1)[:, None]
         errors.append(np.linalg.norm(corners - truth, axis=1))
-        outward.append(((corners - truth) * out).sum(axis=1))
+        outward.append(outward_offsets(corners, truth))
     return {
         "errors": np.concatenate(errors),
         "outward": float(np.mean(np.concatenate(outward))),
@@ -131,7 +94,7 @@ def test_small_markers_refine(albedos, kind):
 
 def test_a_large_marker_refines_from_corners_pixels_off():
     """The shift limit is half a module, not 2.5 px: a 240-px marker's corners 3 px off refine."""
-    albedo, offset, truth = marker_albedo_image(CAMERA, _pose(240, 0), SPEC, 160, 4, 0)
+    albedo, offset, truth = marker_albedo_image(CAMERA, pose(240, 0), SPEC, 160, 4, 0)
     image = photograph(albedo, Photo(optics_sigma_px=1.0))
     start = truth + np.array([[3.0, 0.0], [0.0, 3.0], [-3.0, 0.0], [0.0, -3.0]])
     corners, failure = refine_corners_by_edges(image, start, CAMERA, MODULES, offset)

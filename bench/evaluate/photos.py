@@ -110,7 +110,7 @@ def references(image: np.ndarray, dictionary: str) -> dict[str, list[tuple[int, 
     return out
 
 
-def _agreeing(corners: dict[str, np.ndarray]) -> tuple[str, ...]:
+def agreeing(corners: dict[str, np.ndarray]) -> tuple[str, ...]:
     """The largest group (at least two) of references whose corners agree pairwise."""
     names = sorted(corners)
     for size in range(len(names), 1, -1):
@@ -136,7 +136,7 @@ def consensus_table(folder: Path = PHOTOS_DIR) -> pd.DataFrame:
             seen.append((marker_id, first))
             corners = {r: match(found, marker_id, first) for r, found in refs.items()}
             corners = {r: c for r, c in corners.items() if c is not None}
-            group = _agreeing(corners)
+            group = agreeing(corners)
             if not group:
                 continue
             mean = np.mean([corners[r] for r in group], axis=0)
@@ -171,7 +171,8 @@ class Outcome(NamedTuple):
     outward_px: np.ndarray  # (4,) refined minus consensus along the diagonal, + outward
 
 
-def _outward(corners: np.ndarray, truth: np.ndarray) -> np.ndarray:
+def outward(corners: np.ndarray, truth: np.ndarray) -> np.ndarray:
+    """(4,) signed offset of each corner from the truth along the marker's diagonal (+ outward)."""
     out = truth - truth.mean(axis=0)
     out /= np.linalg.norm(out, axis=1)[:, None]
     return ((corners - truth) * out).sum(axis=1)
@@ -213,7 +214,7 @@ def measure(
                     failure,
                     np.linalg.norm(begin - truth, axis=1),
                     np.linalg.norm(corners - truth, axis=1),
-                    _outward(corners, truth),
+                    outward(corners, truth),
                 )  # fmt: skip
             )
     return outcomes
