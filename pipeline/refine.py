@@ -17,17 +17,17 @@ where two straight edges meet, so it is found here from the edges instead:
    corners, so the depths hold under perspective, and are sampled every half virtual pixel.
    Only these samples are rectified: each is mapped virtual pixel -> ray -> fisheye pixel and
    read with one bilinear ``cv2.remap`` of the (linearized) image.
-3. **Edge points.** Each profile's edge is the centroid of its derivative over a window of
-   +-2 px re-centred on its own estimate, starting from the halfway crossing nearest the
-   expected edge (:mod:`pipeline.refine_edge`): exact for any point-symmetric blur (pixel-area
-   sampling, bilinear reading, the lens, sharpening) whatever the edge's sub-pixel phase, and
-   for a straight slope of the light across the edge, without knowing the black or white
-   level. Levels taken further from the edge moved corners on real photographs by up to
-   1.5 px: a quiet zone one module wide (a tag on a cube, with the cube's edge beyond it) or
-   paper lit unevenly. The levels (black: a low percentile of the inner samples of a profile
-   and its neighbours along the edge; white: the mean of its outer half) only place the
-   crossing and decide whether a profile has the contrast to be used; an edge whose window
-   holds less than half that contrast is no step (a neighbouring edge or noise) and is dropped.
+3. **Edge points.** Each profile's edge is the centroid of its derivative over a window of +-2
+   px re-centred on its own estimate, starting from the halfway crossing nearest the expected
+   edge (:mod:`pipeline.refine_edge`): exact for any point-symmetric blur (pixel-area sampling,
+   bilinear reading, the lens, sharpening) whatever the edge's sub-pixel phase, nearly so under
+   light falling across the edge, without knowing the black or white level. Levels taken further
+   from the edge moved corners on real photographs by up to 1.4 px: a quiet zone one module wide
+   (a tag on a cube, with the cube's edge beyond it) or paper lit unevenly. The levels (black: a
+   low percentile of the inner samples of a profile and its neighbours along the edge; white:
+   the mean of its outer half) only place the crossing and decide whether a profile has the
+   contrast to be used; an edge whose window holds less than half that contrast is no step (a
+   neighbouring edge or noise) and is dropped.
 4. **Lines and corners.** A straight line is fitted to each edge's points (total least
    squares; points beyond 3 robust sigmas of a first fit are dropped) and adjacent lines are
    intersected. Steps 2-4 run twice, the second time around the first pass's corners; the

@@ -4,24 +4,24 @@ corners and by :mod:`pipeline.refine_curve` for the border's width).
 
 Over a window [a, b] the centroid of the derivative is ``(b v(b) - a v(a) - area) / (v(b) -
 v(a))``: the area under the profile normalized by its own values at the window's ends. When the
-window is centred on the edge, any point-symmetric blur (pixel area, bilinear reading, the
-lens, resampling, sharpening), truncated at the window's ends, leaves it exactly at the edge,
-and so does a straight slope of the light across the edge (its derivative is even about the
-centre). Neither level has to be known: levels taken further out, on a quiet zone only one
-module wide (a tag on a cube, with the cube's edge beyond it) or on paper lit unevenly, moved
-corners by up to 1.5 px on real photographs (docs/refine_real.md).
+window is centred on the edge, any point-symmetric blur (pixel area, bilinear reading, the lens,
+resampling, sharpening), truncated at the window's ends, leaves it exactly at the edge; light
+falling across the edge by a fraction g per px moves it by g h^2 / 2 for a window of half-width
+h (0.01 px where the light halves over 100 px). Neither level has to be known: levels taken
+further out, on a quiet zone only one module wide (a tag on a cube, with the cube's edge beyond
+it) or on paper lit unevenly, moved corners by up to 1.4 px on real photographs
+(docs/refine_real.md).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-#: Half-width of the window (px). A window of 4 blur sigmas and per-run slopes left 0.121 px
-#: median error at 20.4 frames/s on 30 frames of the speed sample (13 markers) against
-#: 0.100 px at 25-26 frames/s for this window.
+#: Half-width of the window (px): it holds 90% of a step blurred with sigma 1.2 px (the camera
+#: twin's lens) and ends short of the code bits' edges one module inside on modules of 4 px.
 WINDOW_PX = 2.0
-#: Re-centrings of the window; from the halfway crossing (within a sample of the edge) the
-#: third moves the estimate by under 0.001 px on the camera twin's renders.
+#: Re-centrings of the window, from the halfway crossing. More (4, 5 or 10) move the corners of
+#: the twin's noisy 20-240 px markers (tests/test_refine_real.py) by up to 0.04 px, either way.
 ITERATIONS = 3
 
 
