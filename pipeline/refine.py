@@ -17,34 +17,36 @@ where two straight edges meet, so it is found here from the edges instead:
    corners, so the depths hold under perspective, and are sampled every half virtual pixel.
    Only these samples are rectified: each is mapped virtual pixel -> ray -> fisheye pixel and
    read with one bilinear ``cv2.remap`` of the (linearized) image.
-3. **Edge points.** Each profile is normalized between local levels (:func:`_normalized`):
-   black from a low percentile of the inner samples of it and its neighbours along the edge
-   (robust to the blur of neighbouring white code bits), white from its own outer half,
-   extended with the slope of the light across the edge (the median over the edge, fitted
-   beyond half a module outside it, where the edge's blur has ended), so uneven lighting does
-   not bias the area; a slope that would take the white to the black level within the profile
-   is the quiet zone ending (a cube's edge, a dark surround), not light, and is not used.
-   The halfway crossing nearest the expected edge centres a window of +-2 px in which the
-   edge position is the window's outer end minus the area under the normalized profile. That
-   area is preserved by pixel-area sampling, bilinear reading and any point-symmetric blur or
-   sharpening the window takes in, so the estimate is unbiased whatever the edge's sub-pixel
-   phase; the halfway crossing alone would be off by up to 0.09 px.
+3. **Edge points.** Each profile's edge is the centroid of its derivative over a window of +-2
+   px re-centred on its own estimate, starting from the halfway crossing nearest the expected
+   edge (:mod:`pipeline.refine_edge`): exact for any point-symmetric blur (pixel-area sampling,
+   bilinear reading, the lens, sharpening) whatever the edge's sub-pixel phase, nearly so under
+   light falling across the edge, without knowing the black or white level. Levels taken further
+   from the edge moved corners on real photographs by up to 1.4 px: a quiet zone one module wide
+   (a tag on a cube, with the cube's edge beyond it) or paper lit unevenly. The levels (black: a
+   low percentile of the inner samples of a profile and its neighbours along the edge; white:
+   the mean of its outer half) only place the crossing and decide whether a profile has the
+   contrast to be used; an edge whose window holds less than half that contrast is no step (a
+   neighbouring edge or noise) and is dropped.
 4. **Lines and corners.** A straight line is fitted to each edge's points (total least
    squares; points beyond 3 robust sigmas of a first fit are dropped) and adjacent lines are
    intersected. Steps 2-4 run twice, the second time around the first pass's corners; the
    corners are then mapped back to fisheye pixels.
 
-Intensities are linearized first: areas and levels only add up where the blur was linear.
+Intensities are linearized first: the centroid is exact only where the blur was linear.
 Blur before encoding (the lens, as in the camera twin) is linear in light (``"srgb"``); blur
 after it (resampling, sharpening, JPEG) in the codes (``"linear"``); a wrong curve moves the
-corners by 0.1-0.7 px. ``"auto"`` (the default) measures the curve on the marker's own border
-(:mod:`pipeline.refine_curve`; tests/test_refine_real.py measures all three).
+corners by 0.1-0.7 px. ``"auto"`` (the default) measures on the marker's own border where
+between the two readings its edges lie (:mod:`pipeline.refine_curve`; tests/test_refine_real.py
+measures all three).
 
 Accuracy (corner error against ground truth, px): on noise-free 64-spp renders of the
 detectability study (lab lighting, 200 mm, alpha 0-85 deg, phi 0-60 deg, where OpenCV finds
-the marker) median 0.02 and max 0.11 for 13.2 mm, median 0.02 and max 0.09 for 8.8 mm, where
-``subpix`` has median 0.42-0.52 and max 1.1-1.2; on exactly ray-cast images (no renderer)
-median 0.01. Cost: about 1 ms per marker for a 100-px crop, 10x OpenCV's detection itself.
+the marker) median 0.02 and max 0.25 for 13.2 mm (the max on a marker turned 60 degrees, whose
+modules across its long edges are 3.3 px: the window sees the code bits' edges), median 0.02
+and max 0.04 for 8.8 mm, where ``subpix`` has median 0.42-0.52 and max 1.1-1.2; on exactly
+ray-cast images (no renderer) median 0.01. Cost: about 1 ms per marker for a 100-px crop, 10x
+OpenCV's detection itself.
 
 If refinement fails (too little contrast across an edge, an edge with too few consistent
 points or too much scatter about its line, nearly parallel edges, samples outside the image
@@ -63,6 +65,7 @@ import numpy as np
 
 from pipeline.pose import virtual_view_rotation
 from pipeline.refine_curve import choose_curve
+from pipeline.refine_edge import WINDOW_PX, edge_centroids
 from scenes.camera import FisheyeCamera
 
 TRANSFERS = ("auto", "srgb", "linear")
@@ -71,18 +74,12 @@ INNER_MODULES = 0.6  # profile depth inside the black border, in modules
 OUTER_MODULES = 1.0  # profile length into the white quiet zone, in modules
 STEP_PX, ALONG_STEP_PX = 0.5, 1.0  # sample spacing along a profile, profiles along an edge (px)
 MIN_PROFILES, MAX_PROFILES = 6, 64  # per edge
-#: Half-width of the window in which an edge's position is measured. A window of 4 blur sigmas
-#: and per-run slopes left 0.121 px median error at 20.4 frames/s on 30 frames of the speed
-#: sample (13 markers) against 0.100 px at 25-26 frames/s for this window.
-WINDOW_PX = 2.0
-RUN_PROFILES = 7  # profiles (odd) that share a black level along an edge
-#: The light's slope across an edge is fitted beyond this many modules outside the edge.
-SLOPE_CLEAR_MODULES = 0.5
-#: Fewer samples there (3 px at STEP_PX): no slope; on 20-40 px markers with the twin's noise
-#: a slope from 4 samples put corners up to 0.75 px off.
-MIN_SLOPE_SAMPLES = 6
+RUN_PROFILES = 7  # profiles (odd) along an edge that share a black level and window ends
 BLACK_PERCENTILE = 15.0  # of the samples from 0.6 to 0.3 module inside an edge
 MIN_CONTRAST = 0.2  # (white - black) / white, in linear light
+#: An edge's window must hold this much of the profile's contrast: less is no step (a blur
+#: sigma of 3 px still leaves 0.5 within +-2 px), but a neighbouring edge or noise.
+MIN_RISE = 0.5
 MIN_INLIER_FRACTION = 0.6  # of an edge's profiles, to accept its line
 PASSES = 2
 #: A corner moving further has latched onto another edge (the code bits are 1 module inside).
@@ -197,12 +194,13 @@ def _edge_lines(
     ).reshape(4, n_along, n_s)
 
     j_edge = t_edge * (n_s - 1)  # sample index of the expected edge
-    # the profiles reach OUTER_MODULES beyond the edge: the slope's share of that
-    clear = SLOPE_CLEAR_MODULES / OUTER_MODULES * (n_s - 1 - j_edge.max())
-    v, ok = _normalized(values, j_edge, clear)
-    j, found = _crossings(v, ok, j_edge)
-    edge = _edge_positions(v, j, found, WINDOW_PX, ds)
-    found = np.isfinite(edge)
+    v, contrast = _normalized(values, j_edge)
+    j, found = _crossings(v, contrast > 0, j_edge)
+    # start from the halfway crossing, interpolated between the samples about it
+    v0, v1 = (np.take_along_axis(v, (j + k)[..., None], axis=2)[..., 0] for k in (0, 1))
+    start = j + np.clip((0.5 - v0) / np.where(v1 > v0, v1 - v0, 1.0), 0.0, 1.0)
+    edge, rise = edge_centroids(values, start, WINDOW_PX / ds, _run_median)
+    found &= np.isfinite(edge) & (rise >= MIN_RISE * contrast)
     points = p_in + np.where(found, edge / (n_s - 1), t_edge)[..., None] * delta
     return _fit_lines(points, found, max(0.1 * length.min() / modules, 0.15))
 
@@ -216,19 +214,20 @@ def _runs(x: np.ndarray) -> np.ndarray:
     return x[:, idx]
 
 
-def _normalized(
-    values: np.ndarray, j_edge: np.ndarray, clear: float
-) -> tuple[np.ndarray, np.ndarray]:
-    """Profiles (4, n, n_s) scaled to 0 at their black level and 1 at their white level, and
-    whether each has the contrast to be used.
+def _run_median(x: np.ndarray) -> np.ndarray:
+    """(4, n): each profile's value replaced by the median over its run along the edge."""
+    return np.median(_runs(x), axis=2)
 
-    Both levels are local. Black: a low percentile of the inner half of the black part over a
-    run of neighbouring profiles (robust to the blur of neighbouring white code bits). White:
-    the mean of the outer half of the profile's white part, extended as a straight line whose
-    slope (the median over the edge's profiles) is fitted to the samples more than ``clear``
-    samples beyond the edge, so that light falling off across the edge is followed; no slope
-    where too few samples lie beyond it. The contrast test uses the flat levels: a noisy slope
-    must not discard a profile.
+
+def _normalized(values: np.ndarray, j_edge: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Profiles (4, n, n_s) scaled to 0 at their black level and 1 at their white level, and
+    each one's contrast (white - black; 0 where it is too low to be used).
+
+    The levels only place the halfway crossing that starts each edge's window and decide
+    whether a profile has contrast: the edge itself needs neither (:mod:`pipeline.refine_edge`).
+    Black: a low percentile of the inner half of the black part over a run of neighbouring
+    profiles (robust to the blur of neighbouring white code bits). White: the mean of the outer
+    half of the profile's white part.
     """
     n_s = values.shape[2]
     c_in = int(0.5 * j_edge.min()) + 1
@@ -236,26 +235,12 @@ def _normalized(
     inner = _runs(values[:, :, :c_in]).reshape(*values.shape[:2], -1)
     k = int(BLACK_PERCENTILE / 100.0 * (inner.shape[2] - 1))
     black = np.partition(inner, k, axis=2)[..., k]
-    mid = 0.5 * (c_out + n_s - 1)
-    flat = values[:, :, c_out:].mean(axis=2)
-    ok = flat - black >= MIN_CONTRAST * flat
-    white = np.broadcast_to(flat[..., None], values.shape)
-    c_slope = int(np.ceil(j_edge.max() + clear))
-    if n_s - c_slope >= MIN_SLOPE_SAMPLES:
-        x = np.arange(c_slope, n_s) - 0.5 * (c_slope + n_s - 1)
-        slope = np.median(
-            (values[:, :, c_slope:] * x).sum(axis=2) / (x * x).sum(), axis=1, keepdims=True
-        )
-        sloped = white + slope[..., None] * (np.arange(n_s) - mid)
-        # Light does not fall to the black level within a module: a slope that reaches it is
-        # the quiet zone ending (a cube's edge, a neighbouring dark patch), not light; the
-        # profile keeps its flat white level.
-        light = (sloped - black[..., None]).min(axis=2) >= MIN_CONTRAST * flat
-        white = np.where(light[..., None], sloped, white)
-    contrast = white - black[..., None]
+    white = values[:, :, c_out:].mean(axis=2)
+    ok = white - black >= MIN_CONTRAST * white
     if np.any(ok.sum(axis=1) < MIN_INLIER_FRACTION * values.shape[1]):
         raise _RefineError("low contrast")
-    return (values - black[..., None]) / np.where(ok[..., None], contrast, 1.0), ok
+    contrast = np.where(ok, white - black, 0.0)
+    return (values - black[..., None]) / np.where(ok, contrast, 1.0)[..., None], contrast
 
 
 def _crossings(v: np.ndarray, ok: np.ndarray, j_edge: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -268,28 +253,6 @@ def _crossings(v: np.ndarray, ok: np.ndarray, j_edge: np.ndarray) -> tuple[np.nd
     if not found.any():
         raise _RefineError("low contrast")
     return np.argmin(dist, axis=2), found
-
-
-def _window(j: np.ndarray, half_px: float, ds: np.ndarray, n_s: int):
-    """The window of +-``half_px`` around each crossing: half-width and first sample (samples),
-    and the flat indices of its first and last samples."""
-    half = min(int(np.ceil(half_px / ds.min())), (n_s - 1) // 2)
-    j_lo = np.minimum(np.maximum(j - half, 0), n_s - 1 - 2 * half)
-    lo = (np.arange(j.size) * n_s).reshape(j.shape) + j_lo
-    return half, j_lo, lo, lo + 2 * half
-
-
-def _edge_positions(v: np.ndarray, j: np.ndarray, found: np.ndarray, half_px: float, ds):
-    """Each profile's edge (4, n), in samples from its inner end; NaN where none is found.
-
-    In a window of +-``half_px`` around the crossing, the edge is the window's outer end minus
-    the area under the profile.
-    """
-    half, j_lo, lo, hi = _window(j, half_px, ds, v.shape[2])
-    v_flat, total = v.ravel(), np.cumsum(v, axis=2).ravel()
-    # trapezoid area from sample j_lo to j_hi, in samples
-    area = total[hi] - total[lo] - 0.5 * (v_flat[hi] - v_flat[lo])
-    return np.where(found, j_lo + 2 * half - area, np.nan)
 
 
 def _fit_lines(

@@ -2,15 +2,20 @@
 refinement can be trusted when it cannot be measured (``transfer="auto"`` of
 :func:`pipeline.refine.refine_corners_by_edges`).
 
-The edge position from the area under a profile is exact when the profile is a point-symmetric
-blur of a step in the intensities it is read in. Blur before the camera's curve (the lens, as
-in the camera twin) is symmetric in linear light (``"srgb"``); blur after it (resampling,
-sharpening, JPEG, as in most photographs handed over) is symmetric in the codes (``"linear"``).
+An edge's position (:func:`pipeline.refine_edge.edge_centroids`) is exact when its profile is a
+point-symmetric blur of a step in the intensities it is read in. Blur before the camera's curve
+(the lens, as in the camera twin) is symmetric in linear light (``"srgb"``); blur after it
+(resampling, sharpening, JPEG, as in most photographs handed over) is symmetric in the codes
+(``"linear"``).
 Read with the wrong curve, every dark-to-light edge moves by the same amount towards the light:
 a black region grows, a light one shrinks. The marker's black border is exactly one module wide
 and, where the code bit inside it is white, has an inner edge of the opposite polarity: its
 measured width minus one module is twice that shift (:func:`border_excess`), zero under the
-right curve. The curve with the smaller excess is kept.
+right curve. Real images are blurred both before the curve (the lens) and after it (their
+processing): their edges lie between the two readings, where the border is one module wide.
+Shifts this small add linearly, so the corners are taken at that share of the way from the
+"srgb" reading to the "linear" one (clipped to the two): on renders blurred after the curve
+this leaves a fifth of the error of the "linear" reading alone (tests/test_refine_real.py).
 
 Where the border cannot be measured (modules too small for its windows, no white code bit
 along the edges) the camera's own curve, sRGB, is kept, and the refinement is refused as "curve
@@ -26,21 +31,23 @@ from collections.abc import Callable
 import cv2
 import numpy as np
 
+from pipeline.refine_edge import WINDOW_PX, edge_centroids
+
 #: Depths across an edge (modules, + outward) of the border measurement's profiles: from the
 #: centre of the code bit inside the border to past the outer edge's window.
 _DEPTHS = (-1.75, 0.75)
 _BLACK, _WHITE_OUT, _WHITE_IN = (-0.7, -0.3), (0.45, 0.75), (-1.65, -1.35)  # level windows
-_OUTER, _INNER = (-0.5, 0.5), (-1.5, -0.5)  # area windows of the outer and inner edge
-#: The area windows are half a module on each side of an edge: a blur of sigma up to 1/8
-#: module fits them (4 sigmas each side). Real lenses and processing blur by about 1-1.5 px.
-MIN_MODULE_PX = 10.0
+#: The border's two edges are a module apart; each is found in a window of +-WINDOW_PX, which
+#: must end 2 blur sigmas (of up to 1.5 px: real lenses and processing) before the other edge.
+MIN_MODULE_PX = 5.0
 MIN_BORDER_PROFILES = 6  # profiles with a white code bit inside the border, over the 4 edges
 #: Largest corner spread between the two curves that a blurred black-to-white step explains:
-#: per edge, the area between the two readings (in the +-2 px window) of a step from albedo
-#: 0.04 to 0.8 blurred with sigma 1.5 px (the widest blur of tests/test_refine_real.py's
-#: families), before or after the curve, is 0.54 px; at a corner two edges add (x sqrt 2):
-#: 0.77 px, and 0.23 px more for noise and uneven light.
-MAX_CURVE_SPREAD_PX = 1.0
+#: per edge, the two readings' edges (:func:`pipeline.refine_edge.edge_centroids`, +-2 px) of a
+#: step from albedo 0.04 to 0.8 blurred with sigma up to 1.5 px (the widest blur of
+#: tests/test_refine_real.py's families), before or after the curve, at any sub-pixel phase,
+#: differ by 0.66 px at most; at a corner two edges add (x sqrt 2): 0.93 px, and 0.23 px more
+#: for noise and uneven light.
+MAX_CURVE_SPREAD_PX = 1.16
 
 
 def border_excess(
@@ -75,21 +82,21 @@ def border_excess(
     def level(window: tuple[float, float]) -> np.ndarray:
         return np.median(v[:, (d >= window[0]) & (d <= window[1])], axis=1)
 
-    def area(x: np.ndarray, window: tuple[float, float]) -> tuple[np.ndarray, float, float]:
-        """The area under x over the window's samples (modules), and their first and last d."""
-        inside = (d >= window[0]) & (d <= window[1])
-        return np.trapezoid(x[:, inside], d[inside], axis=1), d[inside][0], d[inside][-1]
-
     black, white_out, white_in = level(_BLACK), level(_WHITE_OUT), level(_WHITE_IN)
     contrast = white_out - black
     use = (contrast > 0.2 * white_out) & (white_in - black > 0.5 * contrast)
     if use.sum() < MIN_BORDER_PROFILES:
         return float("nan")
-    v, black = v[use], black[use, None]
-    a_out, _, end = area((v - black) / contrast[use, None], _OUTER)
-    a_in, begin, _ = area((v - black) / (white_in[use, None] - black), _INNER)
-    e_out, e_in = end - a_out, begin + a_in
-    return float(np.median(e_out - e_in) - 1.0) * module_px
+    # both edges found as the corners' are (the same window, in samples of this profile)
+    step = (d[1] - d[0]) * module_px
+    half = WINDOW_PX / step
+    start = np.ones(int(use.sum()))
+    e_out, _ = edge_centroids(v[use], start * np.argmin(np.abs(d)), half)
+    e_in, _ = edge_centroids(-v[use], start * np.argmin(np.abs(d + 1.0)), half)
+    width = (e_out - e_in)[np.isfinite(e_out - e_in)] * step
+    if width.size < MIN_BORDER_PROFILES:
+        return float("nan")
+    return float(np.median(width)) - module_px
 
 
 def choose_curve(
@@ -100,7 +107,7 @@ def choose_curve(
     to_patch: Callable,
     errors: type[Exception],
 ) -> tuple[np.ndarray | None, str | None]:
-    """The corners (virtual px) of the curve the marker's border follows, or None and why not.
+    """The corners (virtual px) under the curve the marker's border follows, or None and why not.
 
     ``run(patch)`` refines on a linearized patch and returns the corners and the homography of
     the marker's modules, or raises ``errors`` (the refinement's failure).
@@ -119,8 +126,13 @@ def choose_curve(
         curve: border_excess(luts[curve][codes].astype(np.float32), h, modules, to_patch)
         for curve, (_, h) in found.items()
     }
-    if np.isfinite(list(excess.values())).all():
-        return found[min(excess, key=lambda c: abs(excess[c]))][0], None
+    e_srgb, e_linear = excess["srgb"], excess["linear"]
+    if np.isfinite([e_srgb, e_linear]).all():
+        # where between the two readings the border is one module wide (clipped to them)
+        share = (
+            float(np.clip(e_srgb / (e_srgb - e_linear), 0.0, 1.0)) if e_srgb != e_linear else 0.0
+        )
+        return found["srgb"][0] + share * (found["linear"][0] - found["srgb"][0]), None
     spread = np.linalg.norm(found["srgb"][0] - found["linear"][0], axis=1).max()
     if spread > MAX_CURVE_SPREAD_PX:
         return None, "curve sensitive"

@@ -19,6 +19,7 @@ from bench.evaluate.prints import (
     MODULES,
     SPEC,
     image_of,
+    one_module_quiet_zone,
     pose,
     prints,
 )
@@ -107,31 +108,47 @@ def test_a_large_marker_refines_from_corners_pixels_off():
 @pytest.mark.slow
 @pytest.mark.parametrize("kind", sorted(BEFORE_CURVE) + sorted(AFTER_CURVE))
 def test_auto_measures_the_curve_on_large_markers(albedos, kind):
-    """transfer="auto" (the default) reads the curve off the marker's border: exactly the
-    "srgb" result on blur before the curve, and within "linear"'s bounds on blur after it (on
-    "blur" and "jpeg" it is the "linear" result; on "sharpen" the border says sRGB)."""
+    """transfer="auto" (the default) reads off the marker's border where between the two
+    readings the edges lie: within "srgb"'s bounds on blur before the curve, and on blur after
+    it (where the pixel's area still integrates linear light) far closer than either reading."""
     before = kind in BEFORE_CURVE
     photo, light = (BEFORE_CURVE if before else AFTER_CURVE)[kind]
     auto = _score(albedos["large"], photo, light, "auto")
     assert auto["failures"] == []
     if before:
-        srgb = _score(albedos["large"], photo, light, "srgb")
-        np.testing.assert_array_equal(auto["errors"], srgb["errors"])
+        assert auto["errors"].mean() < 0.05, auto["errors"].mean()
+        assert auto["errors"].max() < 0.15, auto["errors"].max()
+        assert abs(auto["outward"]) < 0.03, auto["outward"]
         return
-    assert auto["errors"].mean() < 0.25, auto["errors"].mean()
-    assert auto["errors"].max() < 0.5, auto["errors"].max()
-    assert abs(auto["outward"]) < 0.25, auto["outward"]
-    if kind != "sharpen":
-        linear = _score(albedos["large"], photo, light, "linear")
-        np.testing.assert_array_equal(auto["errors"], linear["errors"])
+    linear = _score(albedos["large"], photo, light, "linear")
+    assert auto["errors"].mean() < 0.5 * linear["errors"].mean(), (auto, linear)
+    assert auto["errors"].max() < 0.2, auto["errors"].max()
+    assert abs(auto["outward"]) < 0.05, auto["outward"]
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("kind", sorted(BEFORE_CURVE))
 def test_auto_raises_no_false_flag_on_small_markers(albedos, kind):
-    """Modules too small to measure the border: sRGB, and no "curve sensitive" on clean steps."""
+    """20-40 px markers (modules of 3.3-6.7 px, the smallest too small to measure the border):
+    no "curve sensitive" on clean steps, and no less accurate than "srgb"."""
     photo, light = BEFORE_CURVE[kind]
     auto = _score(albedos["small"], photo, light, "auto")
     srgb = _score(albedos["small"], photo, light, "srgb")
     assert auto["failures"] == []
-    np.testing.assert_array_equal(auto["errors"], srgb["errors"])
+    assert auto["errors"].mean() < srgb["errors"].mean() + 0.01, (auto, srgb)
+    assert auto["errors"].max() < 0.6, auto["errors"].max()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("kind", sorted(BEFORE_CURVE) + sorted(AFTER_CURVE))
+def test_a_quiet_zone_one_module_wide(albedos, kind):
+    """Dark beyond a one-module quiet zone: the levels are not read there, so the corners hold
+    (levels taken beyond the edge put them 2-4 px out on average on the large markers, and up
+    to 11 px, without a failure)."""
+    photo, light = {**BEFORE_CURVE, **AFTER_CURVE}[kind]
+    for size, mean_px, max_px in (("large", 0.06, 0.15), ("small", 0.3, 0.6)):
+        narrow = [(one_module_quiet_zone(a, o, t), o, t) for a, o, t in albedos[size]]
+        r = _score(narrow, photo, light, "auto")
+        assert r["failures"] == [], (size, r["failures"])
+        assert r["errors"].mean() < mean_px, (size, r["errors"].mean())
+        assert r["errors"].max() < max_px, (size, r["errors"].max())
