@@ -38,8 +38,11 @@ from pipeline.refine_edge import WINDOW_PX, edge_centroids
 _DEPTHS = (-1.75, 0.75)
 _BLACK, _WHITE_OUT, _WHITE_IN = (-0.7, -0.3), (0.45, 0.75), (-1.65, -1.35)  # level windows
 #: The border's two edges are a module apart; each is found in a window of +-WINDOW_PX, which
-#: must end 2 blur sigmas (of up to 1.5 px: real lenses and processing) before the other edge.
-MIN_MODULE_PX = 5.0
+#: must end 2 blur sigmas (of 1 px) before the other edge. A 5 px floor (2 sigmas of 1.5 px)
+#: left more markers to sRGB: on tests/test_refine_real.py's 20-40 px markers blurred after the
+#: curve it gave 0.34-0.60 px mean corner error, this one 0.20-0.37, unchanged (0.06-0.12) on
+#: blur before the curve. Smaller modules measured with narrower windows lost accuracy there.
+MIN_MODULE_PX = 4.0
 MIN_BORDER_PROFILES = 6  # profiles with a white code bit inside the border, over the 4 edges
 #: Largest corner spread between the two curves that a blurred black-to-white step explains:
 #: per edge, the two readings' edges (:func:`pipeline.refine_edge.edge_centroids`, +-2 px) of a

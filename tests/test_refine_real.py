@@ -130,13 +130,27 @@ def test_auto_measures_the_curve_on_large_markers(albedos, kind):
 @pytest.mark.parametrize("kind", sorted(BEFORE_CURVE))
 def test_auto_raises_no_false_flag_on_small_markers(albedos, kind):
     """20-40 px markers (modules of 3.3-6.7 px, the smallest too small to measure the border):
-    no "curve sensitive" on clean steps, and no less accurate than "srgb"."""
+    no "curve sensitive" on clean steps, and about as accurate as "srgb", the right curve here:
+    measuring the border on modules of 4-5 px costs 0.006-0.011 px of mean error on this kind
+    of image and saves 0.14-0.23 px on the kind blurred after the curve."""
     photo, light = BEFORE_CURVE[kind]
     auto = _score(albedos["small"], photo, light, "auto")
     srgb = _score(albedos["small"], photo, light, "srgb")
     assert auto["failures"] == []
-    assert auto["errors"].mean() < srgb["errors"].mean() + 0.01, (auto, srgb)
+    assert auto["errors"].mean() < srgb["errors"].mean() + 0.02, (auto, srgb)
     assert auto["errors"].max() < 0.6, auto["errors"].max()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("kind", sorted(AFTER_CURVE))
+def test_auto_measures_the_curve_on_small_markers_from_4_px_modules(albedos, kind):
+    """The 30 and 40 px markers (modules of 5-6.7 px, 4-5 px where tilted) have their border
+    measured: a tenth of a pixel or more nearer the truth than "srgb", which a 5 px floor kept."""
+    photo, light = AFTER_CURVE[kind]
+    auto = _score(albedos["small"], photo, light, "auto")
+    srgb = _score(albedos["small"], photo, light, "srgb")
+    assert auto["failures"] == []
+    assert auto["errors"].mean() < srgb["errors"].mean() - 0.1, (auto, srgb)
 
 
 @pytest.mark.slow
