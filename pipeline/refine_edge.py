@@ -25,13 +25,16 @@ WINDOW_PX = 2.0
 ITERATIONS = 3
 
 
-def _at(values: np.ndarray, area: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The profiles' linear interpolation at x (samples) and their integral from 0 to x."""
-    i = np.clip(np.floor(x).astype(int), 0, values.shape[-1] - 2)[..., None]
-    f = x - i[..., 0]
-    v0 = np.take_along_axis(values, i, -1)[..., 0]
-    v1 = np.take_along_axis(values, i + 1, -1)[..., 0]
-    a0 = np.take_along_axis(area, i, -1)[..., 0]
+def _at(
+    values: np.ndarray, area: np.ndarray, rows: np.ndarray, x: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The profiles' linear interpolation at x (samples) and their integral from 0 to x.
+
+    ``values``, ``area``: (profiles, n_s); ``rows``: each x's profile, broadcast against x.
+    """
+    i = np.clip(np.floor(x).astype(int), 0, values.shape[-1] - 2)
+    f = x - i
+    v0, v1, a0 = values[rows, i], values[rows, i + 1], area[rows, i]
     return v0 + f * (v1 - v0), a0 + f * v0 + 0.5 * f * f * (v1 - v0)
 
 
@@ -50,11 +53,13 @@ def edge_centroids(
     steps = np.cumsum(0.5 * (values[..., 1:] + values[..., :-1]), axis=-1)
     area = np.concatenate([np.zeros(values.shape[:-1] + (1,)), steps], axis=-1)
     c = np.clip(np.asarray(start, dtype=float), 0.0, n_s - 1.0)
+    rows = np.arange(c.size).reshape(c.shape)  # each profile's row in the flattened arrays
+    flat_values, flat_area = values.reshape(-1, n_s), area.reshape(-1, n_s)
     good = np.ones(c.shape, bool)
     for _ in range(ITERATIONS):
         h = np.minimum(half, np.minimum(c, n_s - 1 - c))
         a, b = c - h, c + h
-        (va, fa), (vb, fb) = _at(values, area, a), _at(values, area, b)
+        (va, vb), (fa, fb) = _at(flat_values, flat_area, rows, np.stack([a, b]))
         if smooth is not None:
             va, vb = smooth(va), smooth(vb)
         rise = vb - va
