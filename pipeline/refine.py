@@ -45,8 +45,8 @@ detectability study (lab lighting, 200 mm, alpha 0-85 deg, phi 0-60 deg, where O
 the marker) median 0.02 and max 0.25 for 13.2 mm (the max on a marker turned 60 degrees, whose
 modules across its long edges are 3.3 px: the window sees the code bits' edges), median 0.02
 and max 0.04 for 8.8 mm, where ``subpix`` has median 0.42-0.52 and max 1.1-1.2; on exactly
-ray-cast images (no renderer) median 0.01. Cost: about 1 ms per marker for a 100-px crop, 10x
-OpenCV's detection itself.
+ray-cast images (no renderer) median 0.01. Cost: about 8 ms a marker on the twin's 20-40 px
+markers with ``"auto"``, which refines under both curves (docs/refine_real.md).
 
 If refinement fails (too little contrast across an edge, an edge with too few consistent
 points or too much scatter about its line, nearly parallel edges, samples outside the image
