@@ -372,7 +372,10 @@ def _opencv_error_px(camera: FisheyeCamera, K: np.ndarray, D: np.ndarray) -> flo
         [np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)], axis=-1
     ).reshape(-1, 1, 3)
     ref, _ = cv2.fisheye.projectPoints(rays, np.zeros(3), np.zeros(3), K, D)
-    return float(np.max(np.linalg.norm(ref.reshape(-1, 2) - camera.project(rays[:, 0]), axis=-1)))
+    with np.errstate(over="ignore"):  # absurd intrinsics (1e300 px) give an infinite error
+        return float(
+            np.max(np.linalg.norm(ref.reshape(-1, 2) - camera.project(rays[:, 0]), axis=-1))
+        )
 
 
 def default_camera() -> FisheyeCamera:

@@ -44,7 +44,7 @@ from pipeline.detect import detect_markers
 from pipeline.presets import PipelineConfig
 from scenes.bounded_read import NOT_UTF8, is_utf8
 from scenes.camera import FisheyeCamera, pinhole_camera
-from scenes.input_limits import FRAME_PIXELS, IMAGES_PER_RUN, TRUTH_CSV_BYTES
+from scenes.input_limits import FRAME_PIXELS, FRAME_SIDE_PX, IMAGES_PER_RUN, TRUTH_CSV_BYTES
 from scenes.marker import get_dictionary
 
 KIND = "detect-images"
@@ -143,11 +143,15 @@ def read_truth(path: Path, files: Sequence[Path], dictionary: str) -> Truth:
         for column in CORNER_COLUMNS:
             text = getattr(row, column)
             try:
-                finite = math.isfinite(float(text))
+                value = float(text)
             except ValueError:
-                finite = False
-            if not finite:
+                value = math.nan
+            if not math.isfinite(value):
                 raise ImageInputError(f"{where}: {column}={text!r} is not a finite number")
+            if abs(value) > FRAME_SIDE_PX:  # no image is wider: a corner this far is no corner
+                raise ImageInputError(
+                    f"{where}: {column}={text!r} is outside -{FRAME_SIDE_PX}..{FRAME_SIDE_PX} px"
+                )
     table = table.astype({"marker_id": int, **dict.fromkeys(CORNER_COLUMNS, float)})
     repeated = table.duplicated(list(KEY))
     if repeated.any():
