@@ -40,8 +40,9 @@ _BLACK, _WHITE_OUT, _WHITE_IN = (-0.7, -0.3), (0.45, 0.75), (-1.65, -1.35)  # le
 #: The border's two edges are a module apart; each is found in a window of +-WINDOW_PX, which
 #: must end 2 blur sigmas (of 1 px) before the other edge. A 5 px floor (2 sigmas of 1.5 px)
 #: left more markers to sRGB: on tests/test_refine_real.py's 20-40 px markers blurred after the
-#: curve it gave 0.34-0.60 px mean corner error, this one 0.20-0.37, unchanged (0.06-0.12) on
-#: blur before the curve. Smaller modules measured with narrower windows lost accuracy there.
+#: curve it gave 0.34-0.60 px mean corner error, this one 0.20-0.37; on blur before the curve
+#: 0.059-0.106 px (exactly "srgb") against 0.065-0.117. Smaller modules measured with narrower
+#: windows lost more there.
 MIN_MODULE_PX = 4.0
 MIN_BORDER_PROFILES = 6  # profiles with a white code bit inside the border, over the 4 edges
 #: Largest corner spread between the two curves that a blurred black-to-white step explains:
