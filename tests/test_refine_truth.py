@@ -21,8 +21,8 @@ def measured() -> dict:
     """Every method on the twin's kind of print (blur before the curve, noise, JPEG) and on a
     photograph's (blur after the curve, JPEG, uneven light), both sizes, and the latter's large
     markers in a quiet zone one module wide (the tags on cubes)."""
-    runs = {(f, s, False): None for f in ("twin", "jpeg") for s in ("large", "small")}
-    runs[("jpeg", "large", True)] = None
+    runs = [(f, s, False) for f in ("twin", "jpeg") for s in ("large", "small")]
+    runs.append(("jpeg", "large", True))
     return {key: offsets(*FAMILIES[key[0]], key[1], key[2]) for key in runs}
 
 

@@ -20,7 +20,7 @@ from typing import NamedTuple
 import cv2
 import numpy as np
 
-from bench.evaluate.photos import REFERENCES, agreeing, detector_corners, outward
+from bench.evaluate.photos import REFERENCES, agreeing, detector_corners, match, outward
 from pipeline.refine import refine_corners_by_edges
 from renderers.printed import Photo, gradient, marker_albedo_image, photograph
 from scenes.camera import FisheyeCamera
@@ -123,14 +123,17 @@ def offsets(
         corners = {}
         for name in REFERENCES:
             refinement = "subpix" if name == "opencv" else "none"
-            c = _nearest(detector_corners(image, SPEC.dictionary, name, refinement), local)
+            found = detector_corners(image, SPEC.dictionary, name, refinement)
+            c = match(found, SPEC.marker_id, local)
             if c is not None:
                 corners[name] = c
         group = agreeing(corners)
         if group:
             corners["consensus"] = np.mean([corners[r] for r in group], axis=0)
         if "lines" in methods:
-            raw = _nearest(detector_corners(image, SPEC.dictionary, "opencv", "none"), local)
+            raw = match(
+                detector_corners(image, SPEC.dictionary, "opencv", "none"), SPEC.marker_id, local
+            )
             if raw is not None:
                 refined, failure = refine_corners_by_edges(
                     image, raw + offset, CAMERA, MODULES, offset
@@ -149,12 +152,3 @@ def offsets(
         )
         for m, pairs in measured.items()
     }
-
-
-def _nearest(found: list[tuple[int, np.ndarray]], truth: np.ndarray) -> np.ndarray | None:
-    """The found corners whose centre is within a quarter side of the truth's, if any."""
-    side = np.linalg.norm(truth - np.roll(truth, 1, axis=0), axis=1).mean()
-    best = min(found, key=lambda m: np.linalg.norm(m[1].mean(0) - truth.mean(0)), default=None)
-    if best is None or np.linalg.norm(best[1].mean(0) - truth.mean(0)) > side / 4:
-        return None
-    return best[1]
