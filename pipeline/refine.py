@@ -45,8 +45,8 @@ detectability study (lab lighting, 200 mm, alpha 0-85 deg, phi 0-60 deg, where O
 the marker) median 0.02 and max 0.25 for 13.2 mm (the max on a marker turned 60 degrees, whose
 modules across its long edges are 3.3 px: the window sees the code bits' edges), median 0.02
 and max 0.04 for 8.8 mm, where ``subpix`` has median 0.42-0.52 and max 1.1-1.2; on exactly
-ray-cast images (no renderer) median 0.01. Cost: about 8 ms a marker on the twin's 20-40 px
-markers with ``"auto"``, which refines under both curves (docs/refine_real.md).
+ray-cast images (no renderer) median 0.01. Cost: with ``"auto"``, which refines under both
+curves, about 60% of a ``robust`` frame on the twin's 20-40 px markers (docs/refine_real.md).
 
 If refinement fails (too little contrast across an edge, an edge with too few consistent
 points or too much scatter about its line, nearly parallel edges, samples outside the image
@@ -145,13 +145,20 @@ def _profile_ends(n_along: int, modules: int) -> np.ndarray:
     return np.concatenate([ends, np.ones(ends.shape[:-1] + (1,))], axis=-1)
 
 
-def _edge_lines(
-    patch: np.ndarray, corners_v: np.ndarray, modules: int, to_patch
-) -> tuple[np.ndarray, np.ndarray]:
-    """One sub-pixel line n . x = d per outer edge, in virtual pixels: normals (4, 2), d (4,).
+class _Profiles(NamedTuple):
+    """Where a pass reads its profiles: the same for every curve the patch is read in."""
 
-    ``patch`` is the linearized image; ``to_patch`` maps virtual pixels to its pixels.
-    """
+    p_in: np.ndarray  # (4, n_along, 2) inner ends, virtual px
+    delta: np.ndarray  # (4, n_along, 2) inner to outer end
+    t_edge: np.ndarray  # (4, n_along) where the edge should be, as a fraction of the profile
+    maps: tuple[np.ndarray, np.ndarray]  # cv2.remap's x and y maps, (4 n_along, n_s) float32
+    ds: np.ndarray  # (4, n_along) sample spacing, virtual px
+    max_rms: float  # the edge scatter allowed (px): a tenth of a module, at least 0.15
+
+
+def _profiles(corners_v: np.ndarray, modules: int, to_patch) -> _Profiles:
+    """The profiles across each outer edge of the marker whose corners are ``corners_v``
+    (virtual px); ``to_patch`` maps virtual pixels to the patch's pixels."""
     length = np.linalg.norm(corners_v[_PREV] - corners_v, axis=1)
     if length.min() < 3.0 * modules / 4:
         raise _RefineError("too small")
@@ -185,39 +192,51 @@ def _edge_lines(
     curve = frac * (frac - 1.0)
     mx = a[..., 0, None] + frac * b[..., 0, None] + curve * c[..., 0, None]
     my = a[..., 1, None] + frac * b[..., 1, None] + curve * c[..., 1, None]
-    values = cv2.remap(
-        patch,
-        mx.astype(np.float32).reshape(-1, n_s),
-        my.astype(np.float32).reshape(-1, n_s),
-        cv2.INTER_LINEAR,
-        borderMode=cv2.BORDER_REPLICATE,
-    ).reshape(4, n_along, n_s)
+    maps = (mx.astype(np.float32).reshape(-1, n_s), my.astype(np.float32).reshape(-1, n_s))
+    return _Profiles(p_in, delta, t_edge, maps, ds, max(0.1 * length.min() / modules, 0.15))
+
+
+def _edge_lines(patch: np.ndarray, profiles: _Profiles) -> tuple[np.ndarray, np.ndarray]:
+    """One sub-pixel line n . x = d per outer edge, in virtual pixels: normals (4, 2), d (4,),
+    from ``profiles`` read in ``patch``, the linearized image."""
+    p_in, delta, t_edge, maps, ds, max_rms = profiles
+    n_s = maps[0].shape[1]
+    values = cv2.remap(patch, *maps, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).reshape(
+        *t_edge.shape, n_s
+    )
 
     j_edge = t_edge * (n_s - 1)  # sample index of the expected edge
     v, contrast = _normalized(values, j_edge)
     j, found = _crossings(v, contrast > 0, j_edge)
     # start from the halfway crossing, interpolated between the samples about it
     v0, v1 = (np.take_along_axis(v, (j + k)[..., None], axis=2)[..., 0] for k in (0, 1))
-    start = j + np.clip((0.5 - v0) / np.where(v1 > v0, v1 - v0, 1.0), 0.0, 1.0)
+    start = j + np.minimum(np.maximum((0.5 - v0) / np.where(v1 > v0, v1 - v0, 1.0), 0.0), 1.0)
     edge, rise = edge_centroids(values, start, WINDOW_PX / ds, _run_median)
     found &= np.isfinite(edge) & (rise >= MIN_RISE * contrast)
     points = p_in + np.where(found, edge / (n_s - 1), t_edge)[..., None] * delta
-    return _fit_lines(points, found, max(0.1 * length.min() / modules, 0.15))
+    return _fit_lines(points, found, max_rms)
 
 
 def _runs(x: np.ndarray) -> np.ndarray:
     """(4, n, ...) -> (4, n, RUN_PROFILES, ...): each profile with its neighbours along the edge
     (the ends repeat the first and last), so that levels follow light that varies along it."""
-    n = x.shape[1]
+    return x[:, _run_index(x.shape[1])]
+
+
+@lru_cache(maxsize=64)
+def _run_index(n: int) -> np.ndarray:
+    """(n, RUN_PROFILES) indices of each profile's run along an edge of ``n`` profiles."""
     r = RUN_PROFILES // 2
-    idx = np.clip(np.arange(n)[:, None] + np.arange(-r, r + 1), 0, n - 1)
-    return x[:, idx]
+    index = np.clip(np.arange(n)[:, None] + np.arange(-r, r + 1), 0, n - 1)
+    index.setflags(write=False)  # shared by every call
+    return index
 
 
 def _run_median(x: np.ndarray) -> np.ndarray:
-    """(4, n): each profile's value replaced by the median over its run along the edge (an odd
+    """(..., n): each profile's value replaced by the median over its run along the edge (an odd
     count: the middle value, as ``np.median``, found by a partition)."""
-    return np.partition(_runs(x), RUN_PROFILES // 2, axis=2)[:, :, RUN_PROFILES // 2]
+    mid = RUN_PROFILES // 2
+    return np.partition(x[..., _run_index(x.shape[-1])], mid, axis=-1)[..., mid]
 
 
 def _normalized(values: np.ndarray, j_edge: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -342,10 +361,12 @@ def _refine(
             raise _RefineError("outside image")
         return px
 
+    first = _profiles(corners_v, modules, to_patch)  # every curve's first pass reads these
+
     def run(patch: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        c = corners_v
-        for _ in range(PASSES):
-            c = _intersect(*_edge_lines(patch, c, modules, to_patch))
+        c = _intersect(*_edge_lines(patch, first))
+        for _ in range(PASSES - 1):
+            c = _intersect(*_edge_lines(patch, _profiles(c, modules, to_patch)))
         square = (_SQUARE * modules).astype(np.float32)
         return c, cv2.getPerspectiveTransform(square, c.astype(np.float32))
 

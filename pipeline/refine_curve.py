@@ -94,9 +94,14 @@ def border_excess(
     # both edges found as the corners' are (the same window, in samples of this profile)
     step = (d[1] - d[0]) * module_px
     half = WINDOW_PX / step
-    start = np.ones(int(use.sum()))
-    e_out, _ = edge_centroids(v[use], start * np.argmin(np.abs(d)), half)
-    e_in, _ = edge_centroids(-v[use], start * np.argmin(np.abs(d + 1.0)), half)
+    rising = v[use]
+    start = np.ones(len(rising))
+    edges, _ = edge_centroids(  # the outer edges, then the inner ones (falling: negated)
+        np.concatenate([rising, -rising]),
+        np.concatenate([start * np.argmin(np.abs(d)), start * np.argmin(np.abs(d + 1.0))]),
+        half,
+    )
+    e_out, e_in = edges[: len(rising)], edges[len(rising) :]
     width = (e_out - e_in)[np.isfinite(e_out - e_in)] * step
     if width.size < MIN_BORDER_PROFILES:
         return float("nan")
@@ -117,9 +122,10 @@ def choose_curve(
     the marker's modules, or raises ``errors`` (the refinement's failure).
     """
     found, failures = {}, {}
+    patches = {curve: luts[curve][codes].astype(np.float32, copy=False) for curve in luts}
     for curve in ("srgb", "linear"):
         try:
-            found[curve] = run(luts[curve][codes].astype(np.float32))
+            found[curve] = run(patches[curve])
         except (errors, np.linalg.LinAlgError, cv2.error) as exc:
             failures[curve] = exc
     if "srgb" in failures:
@@ -127,7 +133,7 @@ def choose_curve(
     if "linear" in failures:
         return None, "curve sensitive"  # one reading fits the edges, the other does not
     excess = {
-        curve: border_excess(luts[curve][codes].astype(np.float32), h, modules, to_patch)
+        curve: border_excess(patches[curve], h, modules, to_patch)
         for curve, (_, h) in found.items()
     }
     e_srgb, e_linear = excess["srgb"], excess["linear"]
