@@ -65,7 +65,7 @@ import numpy as np
 
 from pipeline.pose import virtual_view_rotation
 from pipeline.refine_curve import choose_curve
-from pipeline.refine_edge import WINDOW_PX, edge_centroids
+from pipeline.refine_edge import ALONG, OUTWARD, SQUARE, WINDOW_PX, edge_centroids
 from scenes.camera import FisheyeCamera
 
 TRANSFERS = ("auto", "srgb", "linear")
@@ -87,9 +87,6 @@ PASSES = 2
 MAX_SHIFT_MODULES = 0.75
 MIN_MAX_SHIFT_PX = 1.5  # the input corners' own pixel-level error, whatever the size
 
-_SQUARE = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])  # marker, in modules / M
-_ALONG = np.roll(_SQUARE, -1, axis=0) - _SQUARE  # edge k runs from corner k to corner k + 1
-_OUTWARD = np.array([[0.0, -1.0], [1.0, 0.0], [0.0, 1.0], [-1.0, 0.0]])
 _PREV = np.array([3, 0, 1, 2])
 _EDGES = np.arange(4)
 _DEPTH = np.array([-INNER_MODULES, 0.0, OUTER_MODULES])[:, None, None, None]
@@ -140,8 +137,8 @@ def _profile_ends(n_along: int, modules: int) -> np.ndarray:
     """(3, 4 edges, n_along, 3) homogeneous marker points (modules): each profile's inner end,
     its point on the edge and its outer end."""
     t = np.linspace(EDGE_SPAN[0], EDGE_SPAN[1], n_along)
-    base = (_SQUARE[:, None, :] + t[:, None] * _ALONG[:, None, :]) * modules
-    ends = base + _DEPTH * _OUTWARD[:, None, :]
+    base = (SQUARE[:, None, :] + t[:, None] * ALONG[:, None, :]) * modules
+    ends = base + _DEPTH * OUTWARD[:, None, :]
     return np.concatenate([ends, np.ones(ends.shape[:-1] + (1,))], axis=-1)
 
 
@@ -163,7 +160,7 @@ def _profiles(corners_v: np.ndarray, modules: int, to_patch) -> _Profiles:
     if length.min() < 3.0 * modules / 4:
         raise _RefineError("too small")
     H = cv2.getPerspectiveTransform(
-        (_SQUARE * modules).astype(np.float32), corners_v.astype(np.float32)
+        (SQUARE * modules).astype(np.float32), corners_v.astype(np.float32)
     )
     n_along = min(
         max(round((EDGE_SPAN[1] - EDGE_SPAN[0]) * length.max() / ALONG_STEP_PX), MIN_PROFILES),
@@ -367,7 +364,7 @@ def _refine(
         c = _intersect(*_edge_lines(patch, first))
         for _ in range(PASSES - 1):
             c = _intersect(*_edge_lines(patch, _profiles(c, modules, to_patch)))
-        square = (_SQUARE * modules).astype(np.float32)
+        square = (SQUARE * modules).astype(np.float32)
         return c, cv2.getPerspectiveTransform(square, c.astype(np.float32))
 
     if transfer == "auto":

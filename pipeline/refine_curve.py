@@ -31,7 +31,7 @@ from collections.abc import Callable
 import cv2
 import numpy as np
 
-from pipeline.refine_edge import WINDOW_PX, edge_centroids
+from pipeline.refine_edge import ALONG, OUTWARD, SQUARE, WINDOW_PX, edge_centroids
 
 #: Depths across an edge (modules, + outward) of the border measurement's profiles: from the
 #: centre of the code bit inside the border to past the outer edge's window.
@@ -63,22 +63,18 @@ def border_excess(
     ``homography`` maps the marker's modules to virtual pixels; ``to_patch`` virtual pixels to
     the (linearized) patch's pixels.
     """
-    corners = cv2.perspectiveTransform(
-        (np.array([[0, 0], [1, 0], [1, 1], [0, 1]], float) * modules)[None], homography
-    )[0]
+    corners = cv2.perspectiveTransform((SQUARE * modules)[None], homography)[0]
     module_px = np.linalg.norm(corners - np.roll(corners, 1, axis=0), axis=1).min() / modules
     if module_px < MIN_MODULE_PX:
         return float("nan")
-    square = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]]) * modules
-    along = np.roll(square, -1, axis=0) - square
-    outward = np.array([[0.0, -1.0], [1.0, 0.0], [0.0, 1.0], [-1.0, 0.0]])
+    square, along = SQUARE * modules, ALONG * modules
     # three profiles in the middle of each module along an edge, border modules left out
     t = (np.arange(1, modules - 1)[:, None] + np.array([0.3, 0.5, 0.7])).ravel() / modules
     n_d = int(np.ceil((_DEPTHS[1] - _DEPTHS[0]) * module_px / 0.5)) + 1
     d = np.linspace(*_DEPTHS, n_d)
     pts = (square[:, None, None] + t[None, :, None, None] * along[:, None, None]) + d[
         None, None, :, None
-    ] * outward[:, None, None]  # (4, n_t, n_d, 2) modules
+    ] * OUTWARD[:, None, None]  # (4, n_t, n_d, 2) modules
     virt = cv2.perspectiveTransform(pts.reshape(1, -1, 2), homography)[0]
     px = to_patch(virt.reshape(pts.shape)).astype(np.float32).reshape(-1, n_d, 2)
     v = cv2.remap(patch, px[..., 0], px[..., 1], cv2.INTER_LINEAR)  # (profiles, n_d)

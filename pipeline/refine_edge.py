@@ -17,6 +17,14 @@ from __future__ import annotations
 
 import numpy as np
 
+#: The marker's outer square in units of its side (ArUco corner order TL, TR, BR, BL, image y
+#: down); edge k runs from corner k to corner k + 1, ``OUTWARD`` its outward normal.
+SQUARE = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
+ALONG = np.roll(SQUARE, -1, axis=0) - SQUARE
+OUTWARD = np.array([[0.0, -1.0], [1.0, 0.0], [0.0, 1.0], [-1.0, 0.0]])
+for _constant in (SQUARE, ALONG, OUTWARD):
+    _constant.flags.writeable = False
+
 #: Half-width of the window (px): it holds 90% of a step blurred with sigma 1.2 px (the camera
 #: twin's lens) and ends short of the code bits' edges one module inside on modules of 4 px.
 WINDOW_PX = 2.0
