@@ -193,6 +193,37 @@ def check_table(table: Any, schema: Schema, what: object) -> None:
             raise ValueError(f"{what}: column {column.name!r} is {dtype}, must be {column.dtype}")
 
 
+def check_labels(table: Any, frames: int, what: object) -> None:
+    """Refuse a labels table (:data:`LABELS`) that is not one row per marker for each of the
+    sample's ``frames`` frames, or that marks a marker visible without finite corners:
+    ValueError naming ``what`` (the file), the frame and the marker. A frame without rows would
+    read as a frame in which no marker is seen, a repeated row would count twice, and a visible
+    marker's NaN corner would drop out of the corner error."""
+    check_table(table, LABELS, what)
+    frame = table["frame"].to_numpy()
+    if frames and not len(table):
+        raise ValueError(f"{what}: no rows, for a sample of {frames} frames")
+    if len(table) and (frame.min() < 0 or frame.max() >= frames):
+        raise ValueError(
+            f"{what}: frames {frame.min()}..{frame.max()} outside the sample's 0..{frames - 1}"
+        )
+    missing = np.setdiff1d(np.arange(frames), frame)
+    if missing.size:
+        raise ValueError(f"{what}: no rows for frame {missing[0]} (of 0..{frames - 1})")
+    twice = table.duplicated(list(JOIN_KEY)).to_numpy()
+    if twice.any():
+        row = table.iloc[int(np.argmax(twice))]
+        raise ValueError(f"{what}: frame {row['frame']}, marker {row['marker_id']}: two rows")
+    corners = table[[c.name for c in _CORNERS]].to_numpy(dtype=float)
+    bad = table["visible"].to_numpy() & ~np.isfinite(corners).all(axis=1)
+    if bad.any():
+        row = table.iloc[int(np.argmax(bad))]
+        raise ValueError(
+            f"{what}: frame {row['frame']}, marker {row['marker_id']}: visible, with a corner "
+            "that is not a finite number"
+        )
+
+
 #: Accepted dtype kinds per schema kind: any integer width, signed or not; a float column may
 #: hold integers (they convert exactly), an integer column no floats.
 _KINDS = {"i": "iu", "f": "fiu", "b": "b"}

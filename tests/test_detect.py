@@ -223,10 +223,12 @@ def _reseal(dataset, sample_id) -> None:
     """Record an edited sample's files as the dataset's own, as regenerating it would: score
     refuses files that differ from their recorded SHA-256."""
     from bench.common.manifest import sha256
+    from bench.common.video import video_info
 
     folder = dataset / sample_id
     record = json.loads((folder / "sample.json").read_text())
     record["files"] = {name: sha256(folder / name) for name in record["files"]}
+    record["frames"] = video_info(folder / "video.mp4").frame_count
     (folder / "sample.json").write_text(json.dumps(record))
     manifest = json.loads((dataset / "manifest.json").read_text())
     for name in [*record["files"], "sample.json"]:

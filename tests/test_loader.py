@@ -250,7 +250,7 @@ def test_open_refuses_in_one_line_naming_the_file(copy, how) -> None:
         ("camera field", "camera.json"),
         ("labels column", "labels.parquet"),
         ("labels text", "labels.parquet"),
-        ("frame count", "video.mp4"),
+        ("frame count", "sample.json"),
         ("video size", "video.mp4"),
     ],
 )

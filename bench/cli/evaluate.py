@@ -248,8 +248,10 @@ def cmd_score(args: argparse.Namespace) -> int:
         correct = (table["outcome"] == "correct").mean()
         accuracy = f"branch outcome correct in {correct:.0%}, marker recall "
         accuracy += f"{table['recall'].mean():.3f}"
+    reused = len(table.attrs.get("reused", ()))
+    again = f" ({reused} scored by an earlier run of the same code and settings)" if reused else ""
     print(
-        f"{len(table)} samples, {len(refused)} refused: {accuracy}; wrote {out}/samples.csv "
+        f"{len(table)} samples{again}, {len(refused)} refused: {accuracy}; wrote {out}/samples.csv "
         "and grid-*.png"
     )
     name = args.pipeline.name

@@ -89,6 +89,18 @@ def unit_state(path: Path, settings_sha256: str, expect: Mapping | None = None) 
     return DONE
 
 
+def reusable(path: Path, settings_sha256: str, expect: Mapping | None = None) -> dict | None:
+    """The record of a unit that may be reused (:func:`unit_state` says :data:`DONE`), else None:
+    missing, damaged or made with other settings, all to be redone. For units that any settings
+    may overwrite (a score's samples: their folder is named by the pipeline)."""
+    try:
+        if unit_state(path, settings_sha256, expect) != DONE:
+            return None
+    except UnitSettingsError:
+        return None
+    return _read(path)
+
+
 def other_settings(folder: Path, patterns: Iterable[str], settings_sha256: str) -> Path | None:
     """The first intact unit record under ``folder`` (``patterns``: globs of files, of which
     the unit records are read) made with other settings; None when there is none."""

@@ -40,7 +40,7 @@ from scenes.bounded_read import read_json
 from scenes.camera import FisheyeCamera
 from scenes.input_limits import RECORD_BYTES, RECORD_DEPTH
 from scenes.profile import CameraProfile
-from scenes.tables import LABELS, check_table
+from scenes.tables import check_labels
 
 
 @dataclass(frozen=True, eq=False)
@@ -107,15 +107,10 @@ class Sample:
         except Exception as exc:  # pyarrow's errors have no common base but Exception
             raise DatasetFormatError(f"{path}: not a Parquet table ({_line(exc)})") from None
         try:
-            check_table(table, LABELS, path)
+            check_labels(table, len(self), path)
         except ValueError as exc:
-            raise DatasetFormatError(_line(exc)) from None
-        frames = table["frame"].to_numpy()
-        if len(table) and (frames.min() < 0 or frames.max() >= len(self)):
-            raise DatasetFormatError(
-                f"{path}: frames {frames.min()}..{frames.max()} outside the sample's "
-                f"0..{len(self) - 1} (sample.json 'frames': {len(self)})"
-            )
+            says = f"{self.folder / 'sample.json'} says {len(self)} frames"
+            raise DatasetFormatError(f"{_line(exc)}, where {says}") from None
         return table
 
     @functools.cached_property

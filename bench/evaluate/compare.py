@@ -141,6 +141,7 @@ def run_compare(
     from bench.dataset.verify import verify_dataset
     from bench.evaluate.band import band_end_boundaries, sweep_band_values
     from bench.evaluate.score import dataset_family, dataset_psf_scale, for_family, score_dataset
+    from bench.evaluate.score_units import check_own_samples
     from bench.evaluate.sweep_config import SweepConfig, sweep_options
     from bench.evaluate.sweep_report import boundaries, write_sweeps
     from bench.evaluate.sweeps import run_sweeps, sweep_pipelines
@@ -161,6 +162,8 @@ def run_compare(
     for pipeline in pipelines:
         claim(dataset / "scores" / pipeline.folder_name, "score")
     verified = verify_dataset(dataset)  # every file hashed once, before the speed frames
+    for pipeline in pipelines:  # another dataset's samples there: refused before any write
+        check_own_samples(dataset / "scores" / pipeline.folder_name, verified.records)
     prepared = prepare(pipelines, verified)  # results files read, branch finders resolved
     with open_folder(out_dir, "compare", ("", "grids")):  # locked until the manifest is written
         chosen = init_worker(variant)

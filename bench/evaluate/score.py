@@ -40,15 +40,16 @@ from bench.common.run_folder import claim, open_folder  # noqa: E402
 from bench.dataset.verify import VerifiedDataset, verify_dataset  # noqa: E402
 from bench.evaluate.grid_plot import plot_grid
 from bench.evaluate.results_file import ExternalDetections, frames_per_s  # noqa: E402
+from bench.evaluate.score_units import check_own_samples, reused_row, seal_row, unit_settings
 from pipeline.presets import PipelineConfig  # noqa: E402
 from scenes.array import ArraySpec  # noqa: E402
 from scenes.marker import check_dictionary  # noqa: E402
 from scenes.tables import (  # noqa: E402
     DETECTIONS,
     JOIN_KEY,
-    LABELS,
     OWN_POSE_PREFIX,
     TRUTH_SUFFIX,
+    check_labels,
     check_table,
     corners_of,
     rotations_of,
@@ -233,7 +234,6 @@ def sample_columns(record: dict) -> dict:
 
 def _score_sample(task: _SampleTask, _context: None) -> tuple[dict, float | None]:
     """The sample's row of ``samples.csv``, and its foliage threshold if it has no branch."""
-    from bench.common.video import video_info
     from bench.evaluate.detect import run_detect
     from bench.evaluate.external import run_external
     from pipeline.branches import foliage_threshold
@@ -241,15 +241,10 @@ def _score_sample(task: _SampleTask, _context: None) -> tuple[dict, float | None
     from scenes.profile import load_profile
 
     record, folder = task.record, task.folder
-    sample_id = record["sample_id"]
-    labels = pd.read_parquet(folder / "labels.parquet")
-    check_table(labels, LABELS, folder / "labels.parquet")
-    n_frames = video_info(folder / "video.mp4").frame_count
-    if n_frames != labels["frame"].nunique():
-        raise ValueError(f"{sample_id}: the labels do not match the video's frame count")
+    labels, n_frames = _checked_labels(folder, record)
     camera = load_profile(folder / "camera.json").lens  # a profile, or an old bare camera
     common = sample_columns(record)
-    out = task.out_dir / sample_id
+    out = task.out_dir / record["sample_id"]
     try:
         if task.external is None:
             result = run_detect(
@@ -290,6 +285,23 @@ def _score_sample(task: _SampleTask, _context: None) -> tuple[dict, float | None
         "refine_failures": sum(result["refine_failures"].values()),
     }
     return row, threshold
+
+
+def _checked_labels(folder: Path, record: dict) -> tuple[pd.DataFrame, int]:
+    """A sample's labels and its video's frame count, once both agree with its ``sample.json``
+    (:func:`scenes.tables.check_labels`); ValueError naming the file otherwise."""
+    from bench.common.video import video_info
+
+    video, path = folder / "video.mp4", folder / "labels.parquet"
+    n_frames = video_info(video).frame_count
+    if n_frames != record["frames"]:
+        raise ValueError(f"{video}: {n_frames} frames where sample.json says {record['frames']}")
+    try:
+        labels = pd.read_parquet(path)
+    except Exception as exc:  # pyarrow's errors have no common base but Exception
+        raise ValueError(f"{path}: not a Parquet table ({type(exc).__name__})") from None
+    check_labels(labels, n_frames, path)
+    return labels, n_frames
 
 
 def score_dataset(
@@ -336,37 +348,55 @@ def score_dataset(
     if external is not None:
         settings["results"] = {"source": str(external.source), "fps": fps}
     settings_sha256 = json_sha256(settings)
+    check_own_samples(out_dir, records)  # refused before anything is written
+    for sample_id, record in sorted(records.items()):  # every sample's labels, before any work
+        _checked_labels(dataset / sample_id, record)
+    # another tool's detections are scored anew: their file is not in the settings
+    units = unit_settings(settings_sha256) if external is None else None
     with open_folder(out_dir, "score", ("", *records), settings_sha256):
         thresholds: dict[str, float] = {}
-        rows = []
+        rows, reused = [], []
         # the caller's pool stays open for its next use; without one, this call's own
         own = TaskPool(workers, executor=executor, scheduler=scheduler) if pool is None else None
         with nullcontext(pool) if own is None else own as pool:
             ran_on = pool.describe()
             for twins in (True, False):  # a sample's threshold is its twin's: twins first
-                tasks = []
+                tasks, done = {}, {}
                 for sample_id, record in sorted(records.items()):
                     if (record["branches_mm"] == []) != twins:
                         continue
                     twin, source = _none_twin(record, records)
                     fixed = config.threshold == "fixed" and twin is not None
-                    tasks.append(
-                        _SampleTask(
-                            dataset / sample_id,
-                            record,
-                            config,
-                            out_dir,
-                            thresholds.get(twin) if fixed else None,
-                            source,
-                            verified.digests[f"{sample_id}/video.mp4"],
-                            *_external_of(external, sample_id, fps),
-                        )
+                    task = _SampleTask(
+                        dataset / sample_id,
+                        record,
+                        config,
+                        out_dir,
+                        thresholds.get(twin) if fixed else None,
+                        source,
+                        verified.digests[f"{sample_id}/video.mp4"],
+                        *_external_of(external, sample_id, fps),
                     )
+                    unit = (out_dir / sample_id, units, sample_id, task.threshold)
+                    found = units and reused_row(*unit, task.video_sha256)
+                    if found:
+                        done[sample_id] = found
+                        reused.append(sample_id)
+                    else:
+                        tasks[sample_id] = task
                 desc = f"score {config.name}" + ("" if twins else " (branches)")
-                for row, threshold in pool.map(_score_sample, tasks, desc=desc, unit="sample"):
+                for row, threshold in pool.map(
+                    _score_sample, list(tasks.values()), desc=desc, unit="sample"
+                ):
+                    sample_id, task = row["sample_id"], tasks[row["sample_id"]]
+                    if units:  # sealed, and read back as a rerun will read it
+                        unit = (out_dir / sample_id, units, sample_id, task.threshold)
+                        row, threshold = seal_row(*unit, task.video_sha256, row, threshold)
+                    done[sample_id] = row, threshold
+                for sample_id, (row, threshold) in sorted(done.items()):
                     rows.append(row)
                     if threshold is not None:
-                        thresholds[row["sample_id"]] = threshold
+                        thresholds[sample_id] = threshold
         table = pd.DataFrame(rows).sort_values("sample_id").reset_index(drop=True)
         table = table.reindex(columns=[*table, *(c for c in SCORED_COLUMNS if c not in table)])
         with atomic_path(out_dir / "samples.csv") as tmp:
@@ -392,8 +422,10 @@ def score_dataset(
             **ran_on,
             units=sorted(records),  # a sample's folder of detections each
             settings_sha256=settings_sha256,
+            reused=sorted(reused),  # scored by an earlier run (bench.evaluate.score_units)
         )
         write_manifest(out_dir, record)
+        table.attrs["reused"] = sorted(reused)
         return table
 
 
