@@ -195,6 +195,23 @@ def test_bad_folders_and_options_are_refused(fake, truth, tmp_path, capsys) -> N
     assert not out.exists()
 
 
+def test_a_sample_with_both_a_csv_and_a_parquet_file_is_refused(
+    fake, truth, tmp_path, capsys
+) -> None:
+    """Reading either file alone would score half the results without a word."""
+    folder, out = tmp_path / "results", tmp_path / "out"
+    folder.mkdir()
+    for sample_id, part in truth.groupby("sample_id"):
+        part.to_csv(folder / f"{sample_id}.csv", index=False)
+    rows = truth[truth["sample_id"] == LONG]
+    rows.iloc[len(rows) // 2 :].to_parquet(folder / f"{LONG}.parquet", index=False)
+    assert _score(fake, folder, out) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1, err
+    assert f"two files for sample {LONG}: {LONG}.csv and {LONG}.parquet" in err, err
+    assert not out.exists()
+
+
 def test_caps_bound_the_read(fake, truth, tmp_path, capsys, monkeypatch) -> None:
     from bench.evaluate import results_file
 

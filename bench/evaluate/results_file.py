@@ -75,6 +75,7 @@ def read_detections(
         files = sorted(p for p in path.iterdir() if not p.name.startswith("."))
         if not files:
             raise ResultsFileError(f"{path}: an empty folder; expected <sample id>.csv/.parquet")
+        _one_file_each(path, files)
         per_sample = True
     elif path.is_file():
         files, per_sample = [path], False
@@ -110,6 +111,20 @@ def read_detections(
         has_pose=POSE[0] in names,
         has_time=TIME_COLUMN in names,
     )
+
+
+def _one_file_each(folder: Path, files: list[Path]) -> None:
+    """Refuse a sample with both a .csv and a .parquet file: reading one would drop the other's
+    rows unseen (a recall made up from half the results)."""
+    seen: dict[str, Path] = {}
+    for file in files:
+        if file.suffix in SUFFIXES and file.is_file() and file.stem in seen:
+            raise ResultsFileError(
+                f"{folder}: two files for sample {file.stem}: {seen[file.stem].name} and "
+                f"{file.name}; expected one <sample id>.csv or .parquet per sample"
+            )
+        if file.suffix in SUFFIXES and file.is_file():
+            seen[file.stem] = file
 
 
 def _sample_of(file: Path, facts: dict[str, SampleFacts]) -> str:
