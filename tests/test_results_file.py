@@ -130,6 +130,9 @@ def _break(table: pd.DataFrame, how: str) -> pd.DataFrame:
         t = t[t["sample_id"] != SHORT]
     elif how == "another dataset's hash":
         t["dataset_sha256"] = "0" * 64
+    elif how.startswith("frame time "):  # 0: no timing; 1e-320: inf frames/s; 1e308: overflow
+        t["frame_time_s"] = 0.02
+        t.loc[3, "frame_time_s"] = float(how.split()[-1])
     return t
 
 
@@ -147,6 +150,9 @@ BROKEN = {  # how: what the one line must name
     "another dataset's sample": "row 4: sample_id 'stiff-close-none-outdoor-sun'",
     "some samples only": f"no detections of sample {SHORT}",
     "another dataset's hash": "dataset_sha256",
+    "frame time 0": "row 4: column 'frame_time_s' is 0.0; expected seconds in 1e-06 .. 3600",
+    "frame time 1e-320": "row 4: column 'frame_time_s' is 1e-320; expected seconds in 1e-06",
+    "frame time 1e308": "row 4: column 'frame_time_s' is 1e+308; expected seconds in 1e-06",
 }
 
 
@@ -185,8 +191,11 @@ def test_bad_folders_and_options_are_refused(fake, truth, tmp_path, capsys) -> N
     for extra, says in (
         (["--name", "../up"], "--name: '../up'"),
         (["--name", "paper"], "built-in pipeline's name"),
-        (["--fps", "-3"], "--fps: -3.0"),
+        (["--fps", "-3"], "--fps: -3: expected a finite number of frames/s in 1/3600 .. 1e+06"),
         (["--fps", "nan"], "--fps: nan"),
+        (["--fps", "0"], "--fps: 0:"),
+        (["--fps", "1e308"], "--fps: 1e+308:"),  # was inf frames/s and an overflow warning
+        (["--fps", "1e-320"], "--fps: 9.99989e-321:"),
     ):
         assert _score(fake, good, out, *extra) == 2
         assert says in capsys.readouterr().err

@@ -6,7 +6,6 @@ nothing written."""
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -42,8 +41,8 @@ def add_results_options(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--fps",
         type=float,
-        help="the method's frames/s with --detections (default: from the file's frame_time_s; "
-        "without either the method is scored for accuracy only)",
+        help="the method's frames/s with --detections, 1/3600 .. 1e6 (default: from the file's "
+        "frame_time_s; without either the method is scored for accuracy only)",
     )
 
 
@@ -57,7 +56,7 @@ def cmd_score_results(args: argparse.Namespace, fail: Callable[[str], int], exec
     import dataclasses
 
     from bench.dataset.verify import verify_dataset
-    from bench.evaluate.results_file import read_detections, sample_facts
+    from bench.evaluate.results_file import fps_problem, read_detections, sample_facts
     from bench.evaluate.score import score_dataset
 
     if args.detections is None and args.branches is None:
@@ -78,8 +77,8 @@ def cmd_score_results(args: argparse.Namespace, fail: Callable[[str], int], exec
     if name in {p.folder_name for p in PRESETS.values()}:
         return fail(f"--name: {name!r} is a built-in pipeline's name; choose another")
     fps = args.fps
-    if fps is not None and not (math.isfinite(fps) and fps > 0):
-        return fail(f"--fps: {fps}: expected a finite number > 0")
+    if fps is not None and (problem := fps_problem(fps)) is not None:
+        return fail(f"--fps: {problem}")
     if not args.dataset.is_dir():
         return fail(f"{args.dataset}: not a dataset folder")
     out = args.out or args.dataset / "scores" / name

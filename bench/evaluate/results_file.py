@@ -5,7 +5,7 @@ plus the detections table's own columns (:mod:`scenes.tables`): ``frame``, ``mar
 corners ``c{0..3}_{x,y}_px``; optionally the 12 pose columns of ``T_cam_marker``, the seconds the
 method spent on each frame (:data:`TIME_COLUMN`) and the dataset manifest's SHA-256
 (:data:`SHA_COLUMN`). A folder holds one such file per sample, named ``<sample id>.csv`` or
-``.parquet`` (``sample_id`` may then be left out; a file with a header only: nothing detected).
+``.parquet``, not both (``sample_id`` may then be left out; a header only: nothing detected).
 
 :func:`read_detections` reads it with bounded reads (:data:`MAX_FILE_BYTES` per file,
 :data:`MAX_ROWS` in all) and refuses, in one line naming the file and the row or column and what
@@ -33,6 +33,13 @@ SUFFIXES = (".csv", ".parquet")
 #: How far (px) past the image's edge ([-0.5, W - 0.5] x [-0.5, H - 0.5]) a corner may lie.
 OUTSIDE_PX = 8.0
 TIME_COLUMN = "frame_time_s"
+#: A frame's time (s), and ``--fps`` as their inverse: 1 us a frame is 1e6 frames/s, beyond any
+#: detector (OpenCV's ArUco takes 66 us on a blank 64 x 64 image here); an hour a frame is no
+#: detector either. A time of 0 is a timer too coarse or a time left out, not a speed. Within
+#: these the total time of MAX_ROWS frames (3.6e10 s) and the frames/s stay finite: no overflow
+#: warning, no inf or 0 frames/s in samples.csv.
+MIN_FRAME_TIME_S = 1e-6
+MAX_FRAME_TIME_S = 3600.0
 SHA_COLUMN = "dataset_sha256"
 CORNERS = [name for pair in CORNER_COLUMNS for name in pair]
 POSE = [*ROTATION_COLUMNS, *TRANSLATION_COLUMNS]
@@ -221,6 +228,7 @@ def _first(file: Path, bad: np.ndarray, table: pd.DataFrame, name: str, want: st
     hit = np.flatnonzero(bad)
     if len(hit):
         value = table[name].iloc[hit[0]]
+        value = value.item() if isinstance(value, np.generic) else value  # 1e-320, not np.float64
         raise ResultsFileError(
             f"{file}: row {hit[0] + 1}: column {name!r} is {value!r}; expected {want}"
         )
@@ -312,11 +320,28 @@ def _check_values(
             "expected one row per sample, frame and marker"
         )
     if TIME_COLUMN in out:
-        _first(file, out[TIME_COLUMN].to_numpy() < 0, out, TIME_COLUMN, "seconds >= 0")
+        times = out[TIME_COLUMN].to_numpy()
+        _first(
+            file,
+            (times < MIN_FRAME_TIME_S) | (times > MAX_FRAME_TIME_S),
+            out,
+            TIME_COLUMN,
+            f"seconds in {MIN_FRAME_TIME_S:g} .. {MAX_FRAME_TIME_S:g} (a frame's time; 0 is no "
+            "timing: leave the column out or use --fps)",
+        )
         spread = out.groupby(["sample_id", "frame"])[TIME_COLUMN].transform("nunique")
         _first(
             file, spread.to_numpy() > 1, out, TIME_COLUMN, "the same time on every row of a frame"
         )
+
+
+def fps_problem(fps: float) -> str | None:
+    """Why ``--fps`` is refused (None: accepted): the frame-time bounds as frames/s, so that no
+    made-up speed (0, inf) reaches samples.csv."""
+    lo, hi = 1 / MAX_FRAME_TIME_S, 1 / MIN_FRAME_TIME_S
+    if math.isfinite(fps) and lo <= fps <= hi:
+        return None
+    return f"{fps:g}: expected a finite number of frames/s in 1/{MAX_FRAME_TIME_S:g} .. {hi:g}"
 
 
 def frames_per_s(table: pd.DataFrame, fps: float | None) -> float | None:
