@@ -297,6 +297,10 @@ def test_branch_estimates_alone_are_scored(fake, tmp_path, capsys) -> None:
         ([f"{LONG},,", f"{SHORT},6,7", f"{SHORT},6,7"], "row 3: sample"),
         ([f"{LONG},,", f"{LONG},1,2", f"{SHORT},,"], "row 2: sample"),
         ([f"{LONG},,", "other-sample,1,2", f"{SHORT},,"], "row 2: column 'sample_id'"),
+        # text pandas would read as NaN, i.e. as "no branch found": not an integer
+        ([f"{LONG},,", f"{SHORT},nan,nan"], "row 2: column 'whisker_left' is 'nan'; expected an"),
+        ([f"{LONG},,", f"{SHORT},NA,NA"], "row 2: column 'whisker_left' is 'NA'"),
+        ([f"{LONG},,", f"{SHORT}, , "], "row 2: column 'whisker_left' is ' '"),
     ],
 )
 def test_bad_branch_files_are_refused(fake, tmp_path, capsys, rows, says) -> None:

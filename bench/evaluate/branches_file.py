@@ -3,7 +3,8 @@
 A branches results file (``docs/results_format.md``) is a Parquet or CSV table, one row per
 sample and estimated branch: ``sample_id``, ``whisker_left`` and ``whisker_right`` (the gap
 between whiskers i and i + 1, as ``branches.json``'s ``gap``); a sample where the method found
-no branch has one row with both empty; optionally ``dataset_sha256``. Each sample is scored
+no branch has one row with both empty (an empty cell or null: ``nan`` or ``NA`` text is refused,
+not read as empty); optionally ``dataset_sha256``. Each sample is scored
 with :func:`bench.evaluate.score.branch_outcome` against its ``sample.json``'s gaps.
 """
 
@@ -75,7 +76,7 @@ def read_branches(
         numbers = pd.to_numeric(column, errors="coerce").to_numpy(dtype=float)
         bad = np.isnan(numbers) & column.notna().to_numpy() | np.isinf(numbers)
         bad |= np.isfinite(numbers) & (numbers != np.round(numbers))
-        _first(path, bad, table, name, "a whisker index (an integer) or empty")
+        _first(path, bad, table, name, "an integer (a whisker index), or an empty cell")
         gaps[name] = numbers
     left, right = gaps["whisker_left"], gaps["whisker_right"]
     n = ids.map(n_whiskers).to_numpy(dtype=float)

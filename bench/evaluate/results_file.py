@@ -157,8 +157,13 @@ def _read(file: Path, rows_left: int) -> pd.DataFrame:
             return pd.read_parquet(file)
         if file.suffix != ".csv":
             raise ResultsFileError(f"{file}: expected a .csv or .parquet file")
-        table = pd.read_csv(
-            file, nrows=rows_left + 1, dtype={"sample_id": str, SHA_COLUMN: str}, comment=None
+        table = pd.read_csv(  # only an empty cell is empty: "nan", "NA" are text, refused
+            file,
+            nrows=rows_left + 1,
+            dtype={"sample_id": str, SHA_COLUMN: str},
+            comment=None,
+            keep_default_na=False,
+            na_values=[""],
         )
     except ResultsFileError:
         raise
