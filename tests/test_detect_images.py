@@ -212,6 +212,9 @@ def hostile(photos, tmp_path):
         "twice": "\n".join([HEADER, rows[0], rows[1], rows[0]]),
         "id": "\n".join([HEADER, rows[0].replace("a.png,3,", "a.png,50,")]),
         "binary": "\x00\xff" * 50,
+        "extra": "\n".join([HEADER + ",score", rows[0] + ",0.9"]),
+        "outside": "\n".join([HEADER, rows[0].replace(",40.3,", ",60000,")]),  # within 65535
+        "cut": "\n".join([HEADER, rows[0].replace(",30.2,", ",-9,")]),  # 8.5 px above the top
     }
     for name, text in bad.items():
         (tmp_path / f"{name}.csv").write_text(text)
@@ -238,6 +241,12 @@ REFUSED = [
     (IMAGES + " --pipelines paper --truth {t}/id.csv", r"--truth.*marker_id='50'.*0\.\.49"),
     (IMAGES + " --pipelines paper --truth {t}/binary.csv", r"--truth.*missing column"),
     (IMAGES + " --pipelines paper --truth {t}/nosuch.csv", r"--truth.*no such file"),
+    (IMAGES + " --pipelines paper --truth {t}/extra.csv", r"--truth.*column 'score' is not in"),
+    (
+        IMAGES + " --pipelines paper --truth {t}/outside.csv",
+        r"--truth.*line 2: x0=60000 is outside image a\.png \(360 x 240 px\): expected -0\.5 ",
+    ),
+    (IMAGES + " --pipelines paper --truth {t}/cut.csv", r"--truth.*line 2: y0=-9 is outside image"),
 ]
 
 

@@ -58,8 +58,9 @@ def add_images_parser(subparsers: argparse._SubParsersAction) -> None:
         type=Path,
         metavar="FILE",
         help="ground-truth CSV with columns image (a file name among IMAGES), marker_id, x0, "
-        "y0, x1, y1, x2, y2, x3, y3 (corners in ArUco order, the pixel convention above); one "
-        "row per marker; images without rows have no markers",
+        "y0, x1, y1, x2, y2, x3, y3 (corners in ArUco order, the pixel convention above, at most "
+        "8 px outside the image) and no other; one row per marker; images without rows have no "
+        "markers",
     )
     p.add_argument(
         "--camera",
@@ -148,6 +149,8 @@ def cmd_detect_images(args: argparse.Namespace) -> int:
             truth = read_truth(args.truth, files, pipelines[0].detector.dictionary)
     except ImageInputError as exc:
         return fail(f"--truth: {exc}")
+    except StillImageError as exc:  # an image whose header the truth's corners are checked on
+        return fail(str(exc))
     out = args.out if args.out is not None else DEFAULT_OUT
     try:
         check_out_folder(out)

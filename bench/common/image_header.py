@@ -154,14 +154,27 @@ def check_header(header: ImageHeader, max_pixels: int = FRAME_PIXELS) -> None:
         raise ImageHeaderError(f"{size}: {header.channels} channels; 1 to 4 are read")
 
 
-def read_bounded_image(path: Path, max_pixels: int = FRAME_PIXELS) -> np.ndarray:
-    """The image as ``cv2.imread(path, IMREAD_UNCHANGED)`` gives it, once its file size and
-    header are within bounds; ImageHeaderError naming what is wrong (not the path) otherwise."""
+def _checked_bytes(path: Path, max_pixels: int) -> tuple[bytes, ImageHeader]:
+    """The file's bytes and header, both within bounds (ImageHeaderError otherwise)."""
     try:
         data = read_bounded_bytes(path, IMAGE_BYTES)
     except BoundedReadError as exc:
         raise ImageHeaderError(str(exc)) from None
-    check_header(image_header(data), max_pixels)
+    header = image_header(data)
+    check_header(header, max_pixels)
+    return data, header
+
+
+def read_image_header(path: Path, max_pixels: int = FRAME_PIXELS) -> ImageHeader:
+    """The header of the image :func:`read_bounded_image` would decode (its size before any
+    pixel is decoded, e.g. to check coordinates given for it), checked the same way."""
+    return _checked_bytes(path, max_pixels)[1]
+
+
+def read_bounded_image(path: Path, max_pixels: int = FRAME_PIXELS) -> np.ndarray:
+    """The image as ``cv2.imread(path, IMREAD_UNCHANGED)`` gives it, once its file size and
+    header are within bounds; ImageHeaderError naming what is wrong (not the path) otherwise."""
+    data, _ = _checked_bytes(path, max_pixels)
     image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
     if image is None:
         raise ImageHeaderError("not a readable image (its data does not decode)")

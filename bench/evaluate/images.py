@@ -30,6 +30,7 @@ import pandas as pd
 from tqdm import tqdm
 
 from bench.common.atomic import write_bytes
+from bench.common.image_header import ImageHeaderError, read_image_header
 from bench.common.manifest import (
     RunClock,
     build_manifest,
@@ -39,6 +40,7 @@ from bench.common.manifest import (
 )
 from bench.common.stills import IMAGE_SUFFIXES, StillImageError, read_grey
 from bench.common.video import draw_preview
+from bench.evaluate.results_file import OUTSIDE_PX
 from pipeline.backends import BackendCrashError
 from pipeline.detect import detect_markers
 from pipeline.presets import PipelineConfig
@@ -129,6 +131,11 @@ def read_truth(path: Path, files: Sequence[Path], dictionary: str) -> Truth:
         raise ImageInputError(
             f"{path}: missing column(s) {', '.join(missing)}; needs {', '.join(TRUTH_COLUMNS)}"
         )
+    extra = [c for c in table.columns if c not in TRUTH_COLUMNS]
+    if extra:  # as the results format: a column read by nobody may be a column misnamed
+        raise ImageInputError(
+            f"{path}: column {extra[0]!r} is not in the format; expected {', '.join(TRUTH_COLUMNS)}"
+        )
     table = table[list(TRUTH_COLUMNS)]
     names = {p.name for p in files}
     ids = int(get_dictionary(dictionary).bytesList.shape[0])
@@ -159,7 +166,34 @@ def read_truth(path: Path, files: Sequence[Path], dictionary: str) -> Truth:
         raise ImageInputError(
             f"{path}: line {k + 2}: marker {table.marker_id[k]} of {table.image[k]} is listed twice"
         )
+    _check_inside(path, table, files)
     return Truth(path, table)
+
+
+def _check_inside(path: Path, table: pd.DataFrame, files: Sequence[Path]) -> None:
+    """Refuse a truth corner over OUTSIDE_PX past its image's edge: the detectors find only
+    markers wholly in the image (none of paper, fast, robust, naive, hybrid, locus finds one whose
+    edge touches it), so such a corner is a typo or a marker no method can find."""
+    by_name = {p.name: p for p in files}
+    sizes = {}
+    for name in table.image.unique():
+        try:
+            header = read_image_header(by_name[name], MAX_IMAGE_PIXELS)
+        except ImageHeaderError as exc:  # the image's fault, not the truth file's
+            raise StillImageError(f"{by_name[name]}: {exc}") from None
+        sizes[name] = (header.width, header.height)
+    size = np.array([sizes[n] for n in table.image], float).reshape(-1, 2)
+    corners = table[list(CORNER_COLUMNS)].to_numpy(float).reshape(-1, 4, 2)
+    bad = (corners < -0.5 - OUTSIDE_PX) | (corners > size[:, None, :] - 0.5 + OUTSIDE_PX)
+    if bad.any():
+        k, corner, axis = np.argwhere(bad)[0]
+        w, h = sizes[table.image[k]]
+        column = CORNER_COLUMNS[2 * corner + axis]
+        raise ImageInputError(
+            f"{path}: line {k + 2}: {column}={table[column][k]:g} is outside image "
+            f"{table.image[k]} ({w} x {h} px): expected -0.5 .. {(w, h)[axis] - 0.5:g} px with "
+            f"{OUTSIDE_PX:g} px of slack (a marker the frame cuts is found by no detector)"
+        )
 
 
 def _camera_for(path: Path, image: np.ndarray, camera: FisheyeCamera | None) -> FisheyeCamera:
