@@ -269,6 +269,7 @@ CASES: list[tuple[str, str]] = [
     ("detect {fx}/black.mp4 --camera={fx}/trunc.json", r"--camera.*not valid JSON"),
     ("detect {fx}/black.mp4 --camera=ideal --foliage-threshold=nan", r"--foliage-threshold"),
     ("detect {fx}/black.mp4 --camera=ideal --foliage-threshold=inf", r"--foliage-threshold"),
+    ("detect {fx}/black.mp4 --camera=ideal --foliage-threshold=1e308", r"0 \.\. 1000 mm"),
     ("detect {fx}/black.mp4 --camera=ideal --pipeline=paper/aruco3=maybe", r"--pipeline.*aruco3"),
     # --- score and compare: folders that are not datasets
     ("score {fx}/nosuch", r"nosuch: not a dataset folder"),
@@ -290,6 +291,8 @@ CASES: list[tuple[str, str]] = [
     (f"{S} --executor=pool --scheduler=tcp://127.0.0.1:1", r"--scheduler.*--executor dask"),
     ("dataset --executor=inline --scheduler=tcp://127.0.0.1:1", r"--scheduler.*--executor dask"),
     ("dataset --scheduler=tcp://127.0.0.1:1", r"--scheduler.*no scheduler answers"),
+    ("dataset --executor=inline --workers=4", r"--workers: 4: --executor inline runs one task"),
+    (f"{S} --executor=inline --workers=2", r"--workers: 2: --executor inline runs one task"),
     ("score {fx}/nodataset --scheduler=tcp://127.0.0.1:1", r"--scheduler.*no scheduler"),
     ("score {fx}/nodataset --workers=0", r"--workers.*>= 1"),
     ("compare {fx}/nodataset --scheduler=http://127.0.0.1:1", r"--scheduler.*tcp://HOST:PORT"),

@@ -220,14 +220,21 @@ def add_executor_options(p: argparse.ArgumentParser) -> None:
 _SCHEDULER = re.compile(r"tcp://(?P<host>[A-Za-z0-9.-]+|\[[0-9A-Fa-f:]+\]):(?P<port>[0-9]{1,5})")
 
 
-def check_executor(executor: str | None, scheduler: str | None) -> str:
-    """The executor the options name; a ``--scheduler`` must be well formed and usable.
+def check_executor(executor: str | None, scheduler: str | None, workers: int | None = None) -> str:
+    """The executor the options name; ``--workers`` (when given) must be 1 with ``inline``, which
+    runs one task at a time in this process; a ``--scheduler`` must be well formed and usable.
 
     FieldError naming the option otherwise, before any work: an address that does not answer
     as a Dask scheduler with at least one worker within :data:`CONNECT_TIMEOUT_S` in all (any
     listening port, a scheduler without workers) is reported, not waited on, since the run
     would otherwise hang on it.
     """
+    if executor == "inline" and workers is not None and workers > 1:
+        raise FieldError(
+            "workers",
+            f"{workers}: --executor inline runs one task at a time in this process; "
+            "use --executor pool or dask for more",
+        )
     if scheduler is None:
         return executor or "pool"
     if executor not in (None, "dask"):

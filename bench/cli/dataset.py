@@ -262,7 +262,7 @@ def cmd_dataset(args: argparse.Namespace) -> int:
     config = dataset_config(args)
     out = check_out_folder(args.out or ("data/quick" if args.quick else "data/default"))
     limits.check_dataset(config, args.workers)
-    executor = check_executor(args.executor, args.scheduler)
+    executor = check_executor(args.executor, args.scheduler, args.workers)
     args.kept = (
         f"finished samples are kept in {out}/<sample id>/ (each verified by its sample.json); "
         "rerun the same command to resume"

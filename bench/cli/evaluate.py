@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 from pathlib import Path
 
@@ -92,9 +91,15 @@ def add_detect_options(p: argparse.ArgumentParser) -> None:
         "--foliage-threshold",
         type=float,
         metavar="MM",
-        help="maximum foliage deflection (from a no-branch sample); default: inferred online",
+        help="maximum foliage deflection (from a no-branch sample), 0 .. 1000 mm; default: "
+        "inferred online",
     )
     p.add_argument("--out", type=Path, help="output folder (default: <video>.<pipeline>/)")
+
+
+#: A deflection is a marker's displacement from its no-contact pose: no whisker bends a metre
+#: (the prototype's are 140 mm). Beyond it a threshold only overflows the plot's scale.
+MAX_FOLIAGE_THRESHOLD_MM = 1000.0
 
 
 def cmd_detect(args: argparse.Namespace) -> int:
@@ -107,8 +112,10 @@ def cmd_detect(args: argparse.Namespace) -> int:
         return 2
 
     threshold = args.foliage_threshold
-    if threshold is not None and not (math.isfinite(threshold) and threshold >= 0):
-        return fail(f"--foliage-threshold: {threshold}: must be a finite number >= 0 mm")
+    if threshold is not None and not (0 <= threshold <= MAX_FOLIAGE_THRESHOLD_MM):
+        return fail(
+            f"--foliage-threshold: {threshold:g}: must be 0 .. {MAX_FOLIAGE_THRESHOLD_MM:g} mm"
+        )
     missing = _missing_detector(args.pipeline)
     if missing:
         return fail(missing)
@@ -202,7 +209,7 @@ def add_workers_options(p: argparse.ArgumentParser, task: str) -> None:
 def check_workers_option(args: argparse.Namespace) -> str:
     """The executor; FieldError on --workers, --executor or --scheduler."""
     limits.check_workers("workers", args.workers)
-    return check_executor(args.executor, args.scheduler)
+    return check_executor(args.executor, args.scheduler, args.workers)
 
 
 def cmd_score(args: argparse.Namespace) -> int:

@@ -274,7 +274,7 @@ def _cmd_detectability(args: argparse.Namespace) -> int:
     out = check_out_folder(args.out if args.out is not None else default_out(config, args.quick))
     workers = limits.default_workers() if args.workers is None else args.workers
     limits.check_study(config, workers)
-    executor = check_executor(args.executor, args.scheduler)
+    executor = check_executor(args.executor, args.scheduler, args.workers)
     args.kept = f"finished cells are kept in {out / 'cells'}; rerun the same command to resume"
     manifest = run_study(
         config,
