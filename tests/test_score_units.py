@@ -172,3 +172,9 @@ def test_check_labels_names_the_frame_and_marker():
     table.loc[3, "c2_y_px"] = np.inf
     with pytest.raises(ValueError, match="frame 1, marker 1: visible, with a corner"):
         check_labels(table, 3, "labels")
+
+
+def test_a_pipeline_name_instead_of_its_config_is_a_clear_type_error(tmp_path):
+    with pytest.raises(TypeError, match="'fast' is a str, not a PipelineConfig; get_pipeline"):
+        score_dataset(tmp_path, "fast", tmp_path / "out")
+    assert not (tmp_path / "out").exists()

@@ -337,6 +337,11 @@ def score_dataset(
     twins' thresholds.
     """
 
+    if not isinstance(config, PipelineConfig):  # e.g. the name "fast" from a script
+        raise TypeError(
+            f"config: {config!r} is a {type(config).__name__}, not a PipelineConfig; "
+            "get_pipeline(name) makes one"
+        )
     dataset, out_dir = Path(dataset), Path(out_dir)
     if external is None:
         config = for_family(config, dataset_family(dataset))  # refused here, before any work
