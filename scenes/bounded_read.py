@@ -9,6 +9,7 @@ ValueError) whose message says what is wrong, without the path: the caller names
 
 from __future__ import annotations
 
+import errno
 import json
 import os
 import stat
@@ -36,6 +37,44 @@ def is_utf8(path: Path | str) -> bool:
     return True
 
 
+#: What a special file is, by the test of its mode.
+SPECIAL_KINDS = (
+    (stat.S_ISCHR, "a character device"),
+    (stat.S_ISBLK, "a block device"),
+    (stat.S_ISFIFO, "a named pipe"),
+    (stat.S_ISSOCK, "a socket"),
+)
+
+
+def special_kind(path: Path | str) -> str | None:
+    """'a character device', 'a named pipe', ... for a path that is neither a file nor a
+    folder (None for those, and where nothing can be stat'ed)."""
+    try:
+        mode = os.stat(path).st_mode
+    except OSError:
+        return None
+    return next((name for test, name in SPECIAL_KINDS if test(mode)), None)
+
+
+def input_problem(path: Path | str) -> str | None:
+    """Why an input that is no regular file or folder cannot be read although something is
+    there (a named pipe, a symlink loop, a dangling link, a name too long), in the words after
+    ``<path>: ``; None where nothing is there, so each caller says "no such file" its own way
+    and a FIFO or a loop is never reported as missing."""
+    try:
+        os.stat(path)
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            return "a symlink loop"
+        if exc.errno != errno.ENOENT:
+            return f"cannot be read ({exc.strerror or type(exc).__name__})"
+        if os.path.islink(path):
+            return f"a dangling symbolic link (to {os.readlink(path)})"
+        return None
+    special = special_kind(path)
+    return f"not a regular file ({special})" if special else None
+
+
 def read_bounded_bytes(path: Path | str, max_bytes: int) -> bytes:
     """The bytes of a regular file of at most ``max_bytes``; BoundedReadError otherwise (a FIFO
     or device would block or never end; a file growing while read is cut at the bound)."""
@@ -43,10 +82,11 @@ def read_bounded_bytes(path: Path | str, max_bytes: int) -> bytes:
         with open(os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC), "rb") as f:
             mode = os.fstat(f.fileno()).st_mode
             if not stat.S_ISREG(mode):
-                raise BoundedReadError("not a regular file")
+                raise BoundedReadError(input_problem(path) or "not a regular file")
             data = f.read(max_bytes + 1)
     except OSError as exc:
-        raise BoundedReadError(f"cannot be read ({exc.strerror or type(exc).__name__})") from None
+        reason = f"cannot be read ({exc.strerror or type(exc).__name__})"
+        raise BoundedReadError(input_problem(path) or reason) from None
     if len(data) > max_bytes:
         raise BoundedReadError(f"larger than {max_bytes} bytes")
     return data

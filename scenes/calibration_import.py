@@ -49,6 +49,7 @@ from scenes.bounded_read import (
     BoundedReadError,
     BoundedSafeLoader,
     BoundedYamlError,
+    input_problem,
     parse_json,
     read_bounded_text,
 )
@@ -116,7 +117,7 @@ def import_calibration(
 
 def _read_text(path: Path) -> str:
     if not path.is_file():
-        raise CalibrationError(path, "file", "not a readable file")
+        raise CalibrationError(path, "file", input_problem(path) or "not a readable file")
     try:
         return read_bounded_text(path, MAX_FILE_BYTES)
     except BoundedReadError as exc:

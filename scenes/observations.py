@@ -30,6 +30,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
+from scenes.bounded_read import input_problem
 from scenes.camera import FisheyeCamera
 from scenes.input_limits import SETTINGS_BYTES
 from scenes.marker import check_dictionary
@@ -322,7 +323,8 @@ def observations_path(name_or_path: str | Path) -> Path:
     shipped = OBSERVATIONS_DIR / f"{text}.json"
     path = shipped if shipped.is_file() else Path(text)
     if not path.is_file():
-        raise ObservationError("observations", f"{text!r}: not a readable file")
+        why = input_problem(path) or "not a readable file"  # a named pipe is there, not missing
+        raise ObservationError("observations", f"{text!r}: {why}")
     return path
 
 

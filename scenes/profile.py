@@ -22,6 +22,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from scenes.bounded_read import input_problem
 from scenes.camera import FisheyeCamera, default_camera
 from scenes.input_limits import SETTINGS_BYTES
 from scenes.validation import FieldError, read_small_json
@@ -431,12 +432,10 @@ def profile_path(name_or_path: str | Path) -> Path:
     """The file a shipped profile's name or a profile/camera JSON path stands for."""
     text = str(name_or_path)
     path = PROFILES_DIR / f"{text}.json" if text in shipped_profiles() else Path(text)
-    if not path.is_file():
-        raise ProfileError(
-            "camera",
-            f"{text!r} is neither a shipped profile ({', '.join(shipped_profiles())}) "
-            "nor a readable JSON file",
-        )
+    if not path.is_file():  # a named pipe or a link loop is there, not missing: say so
+        why, names = input_problem(path), ", ".join(shipped_profiles())
+        missing = f" is neither a shipped profile ({names}) nor a readable JSON file"
+        raise ProfileError("camera", f"{text!r}: {why}" if why else f"{text!r}{missing}")
     return path
 
 

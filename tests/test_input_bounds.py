@@ -316,9 +316,44 @@ def test_fifo_is_refused_not_waited_on(tmp_path, capsys):
     os.mkfifo(fifo)
     with pytest.raises(BoundedReadError, match="not a regular file"):
         read_json(fifo, SETTINGS_BYTES, SETTINGS_DEPTH)  # would block on open() otherwise
-    refused(["camera", "show", fifo], r"camera\.json.* nor a readable JSON file", capsys, tmp_path)
+    refused(
+        ["camera", "show", fifo],
+        r"camera\.json': not a regular file \(a named pipe\)$",
+        capsys,
+        tmp_path,
+    )
     argv = ["camera", "import", fifo, "--format", "basalt", "--out", tmp_path / "p.json"]
-    refused(argv, r"camera\.json: file: not a readable file", capsys, tmp_path)
+    refused(argv, r"camera\.json: file: not a regular file \(a named pipe\)$", capsys, tmp_path)
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["detect", "{}", "--camera", "prototype", "--out", "o"],
+        ["detect", "v.mp4", "--camera", "{}", "--out", "o"],
+        ["detect-images", "{}", "--pipelines", "fast", "--out", "o"],
+        ["camera", "show", "{}"],
+        ["camera", "import", "{}", "--format", "kalibr", "--out", "p.json"],
+        ["lens", "measure", "{}", "--camera", "prototype", "--out", "p.json"],
+    ],
+)
+def test_a_fifo_or_a_link_loop_is_named_not_missing(argv, tmp_path, capsys, monkeypatch):
+    """The shared check (scenes.bounded_read.input_problem) says what is there instead of "no
+    such file", in every command that reads an input file."""
+    monkeypatch.chdir(tmp_path)
+    os.mkfifo("fifo.mp4")
+    os.symlink("loop2", "loop1")
+    os.symlink("loop1", "loop2")
+    os.symlink("nowhere", "dangling.mp4")
+    Path("v.mp4").touch()
+    for name, says in (
+        ("fifo.mp4", "not a regular file \\(a named pipe\\)"),
+        ("loop1", "a symlink loop"),
+        ("dangling.mp4", "a dangling symbolic link \\(to nowhere\\)"),
+    ):
+        pattern = rf"{name}'?: (file: )?{says}$"
+        line = refused([a.format(name) for a in argv], pattern, capsys, tmp_path)
+        assert "no such file" not in line and "neither" not in line
 
 
 def test_parse_json_takes_what_the_readers_wrote():

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 from pathlib import Path
 
 import numpy as np
@@ -201,6 +202,15 @@ def test_bad_folders_and_options_are_refused(fake, truth, tmp_path, capsys) -> N
         assert says in capsys.readouterr().err
     assert main(["score", str(fake), "--name", "x", "--out", str(out)]) == 2
     assert "go with --detections" in capsys.readouterr().err
+    os.mkfifo(tmp_path / "fifo.csv")
+    (tmp_path / "loop1").symlink_to("loop2")
+    (tmp_path / "loop2").symlink_to("loop1")
+    for name, says in (
+        ("fifo.csv", "not a regular file (a named pipe)"),
+        ("loop1", "a symlink loop"),
+    ):
+        assert _score(fake, tmp_path / name, out) == 2  # never "no such file or folder"
+        assert capsys.readouterr().err.endswith(f"{name}: {says}\n")
     assert not out.exists()
 
 

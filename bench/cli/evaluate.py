@@ -24,6 +24,7 @@ from bench.cli.results import (
     wants_results,
 )
 from pipeline.presets import CHOICES, PRESETS, PipelineConfig, get_pipeline
+from scenes.bounded_read import input_problem
 from scenes.validation import FieldError
 
 VARIANT_HELP = (
@@ -126,7 +127,7 @@ def cmd_detect(args: argparse.Namespace) -> int:
     if args.video.is_dir():
         return fail(f"{args.video}: is a folder, not a video file")
     if not args.video.is_file():
-        return fail(f"{args.video}: no such file")
+        return fail(f"{args.video}: {input_problem(args.video) or 'no such file'}")
     try:
         check_video(args.video)  # bounded before the output is claimed or a frame decoded
     except ValueError as exc:

@@ -25,7 +25,6 @@ import json
 import os
 import shlex
 import socket
-import stat
 import sys
 import time
 from collections.abc import Iterable, Iterator
@@ -35,7 +34,7 @@ from pathlib import Path
 
 from bench.common.atomic import check_writable, clean_stale, new_run_id, run_id
 from bench.common.manifest import MANIFEST, kind_of, read_manifest
-from scenes.bounded_read import read_json
+from scenes.bounded_read import read_json, special_kind
 from scenes.input_limits import RECORD_BYTES, RECORD_DEPTH
 from scenes.validation import FieldError
 
@@ -61,21 +60,6 @@ def _this_command() -> str:
 
 
 # -- checks that read only ------------------------------------------------------------------
-
-
-def special_kind(path: Path) -> str | None:
-    """'a character device', 'a pipe', ... for a path that is neither a file nor a folder."""
-    try:
-        mode = os.stat(path).st_mode
-    except OSError:
-        return None
-    kinds = (
-        (stat.S_ISCHR, "a character device"),
-        (stat.S_ISBLK, "a block device"),
-        (stat.S_ISFIFO, "a named pipe"),
-        (stat.S_ISSOCK, "a socket"),
-    )
-    return next((name for test, name in kinds if test(mode)), None)
 
 
 def check_out_path(path: Path, folder: bool) -> None:

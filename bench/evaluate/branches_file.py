@@ -34,6 +34,7 @@ from bench.evaluate.results_file import (
     _read,
     _text,
 )
+from scenes.bounded_read import input_problem
 
 GAP_COLUMNS = ("whisker_left", "whisker_right")
 COLUMNS = ("sample_id", *GAP_COLUMNS)
@@ -46,7 +47,8 @@ def read_branches(
     malformed file (one line naming the file, row or column)."""
     path = Path(path)
     if not path.is_file():
-        raise ResultsFileError(f"{path}: no such file; expected a .csv or .parquet file")
+        problem = input_problem(path) or "no such file"
+        raise ResultsFileError(f"{path}: {problem}; expected a .csv or .parquet file")
     table = _read(path, MAX_ROWS)
     for name in COLUMNS:
         if name not in table.columns:

@@ -44,7 +44,7 @@ from bench.evaluate.results_file import OUTSIDE_PX
 from pipeline.backends import BackendCrashError
 from pipeline.detect import detect_markers
 from pipeline.presets import PipelineConfig
-from scenes.bounded_read import NOT_UTF8, is_utf8
+from scenes.bounded_read import NOT_UTF8, input_problem, is_utf8
 from scenes.camera import FisheyeCamera, pinhole_camera
 from scenes.input_limits import FRAME_PIXELS, FRAME_SIDE_PX, IMAGES_PER_RUN, TRUTH_CSV_BYTES
 from scenes.marker import get_dictionary
@@ -89,7 +89,7 @@ def image_files(paths: Sequence[Path]) -> list[Path]:
                 raise ImageInputError(f"{path}: no images ({', '.join(IMAGE_SUFFIXES)}) in folder")
             files += found
         elif not path.is_file():
-            raise ImageInputError(f"{path}: no such file or folder")
+            raise ImageInputError(f"{path}: {input_problem(path) or 'no such file or folder'}")
         elif path.suffix.lower() not in IMAGE_SUFFIXES:
             raise ImageInputError(f"{path}: not an image name (one of {', '.join(IMAGE_SUFFIXES)})")
         else:
@@ -116,9 +116,7 @@ def read_truth(path: Path, files: Sequence[Path], dictionary: str) -> Truth:
     names the line and the column."""
     path = Path(path)
     if not path.is_file():  # a FIFO or device would block or never end
-        raise ImageInputError(
-            f"{path}: {'not a regular file' if path.exists() else 'no such file'}"
-        )
+        raise ImageInputError(f"{path}: {input_problem(path) or 'no such file'}")
     if path.stat().st_size > MAX_TRUTH_BYTES:
         raise ImageInputError(f"{path}: larger than {MAX_TRUTH_BYTES >> 20} MiB")
     try:

@@ -23,6 +23,7 @@ import pandas as pd
 
 from bench.common.manifest import sha256
 from bench.dataset.verify import SAMPLE_ID, VerifiedDataset
+from scenes.bounded_read import input_problem
 from scenes.input_limits import RESULTS_FILE_BYTES
 from scenes.tables import CORNER_COLUMNS, ROTATION_COLUMNS, TRANSLATION_COLUMNS
 
@@ -87,7 +88,7 @@ def read_detections(
     elif path.is_file():
         files, per_sample = [path], False
     else:
-        raise ResultsFileError(f"{path}: no such file or folder")
+        raise ResultsFileError(f"{path}: {input_problem(path) or 'no such file or folder'}")
     tables: dict[str, pd.DataFrame] = {}
     columns: set[frozenset[str]] = set()
     rows = 0

@@ -34,7 +34,7 @@ from bench.lens.profile import with_noise, with_psf, with_stream
 from bench.lens.psf import solve_bins
 from pipeline.detect import DetectorConfig, detect_markers
 from pipeline.refine import LINEAR_LUTS  # code -> linear light per transfer curve
-from scenes.bounded_read import NOT_UTF8, is_utf8
+from scenes.bounded_read import NOT_UTF8, input_problem, is_utf8
 from scenes.input_limits import FRAME_PIXELS
 from scenes.marker import check_dictionary
 from scenes.profile import CameraProfile
@@ -77,14 +77,14 @@ def _footage_files(footage: str | Path | Sequence[str | Path]) -> tuple[list[Pat
                 raise FootageError(f"{path}: no images ({', '.join(IMAGE_SUFFIXES)}) in folder")
             return files, True
         if not path.is_file():
-            raise FootageError(f"{path}: no such file or folder")
+            raise FootageError(f"{path}: {input_problem(path) or 'no such file or folder'}")
         return [path], path.suffix.lower() in IMAGE_SUFFIXES
     files = [Path(p) for p in footage]
     if not files:
         raise FootageError("footage: the list of images is empty")
     missing = [str(p) for p in files if not p.is_file()]
     if missing:
-        raise FootageError(f"{missing[0]}: no such file")
+        raise FootageError(f"{missing[0]}: {input_problem(missing[0]) or 'no such file'}")
     return files, True
 
 

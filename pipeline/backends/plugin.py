@@ -43,6 +43,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from pipeline.backends import PLUGIN_PREFIX, Backend, BackendError, Found, PoseRequest
+from scenes.bounded_read import input_problem
 from scenes.marker import dictionary_names
 
 if TYPE_CHECKING:
@@ -123,9 +124,10 @@ def _module(spec: str, module: str, cwd: str):
 
 
 def _from_file(spec: str, file: str, cwd: str):
-    path = Path(cwd, file).resolve()
-    if not path.is_file():
-        raise PluginError(f"plugin {spec!r}: {path}: no such file")
+    given = Path(cwd, file)
+    if not given.is_file():  # named as given: resolving a link loop would hide it
+        raise PluginError(f"plugin {spec!r}: {given}: {input_problem(given) or 'no such file'}")
+    path = given.resolve()
     name = "whiskerbench_plugin_" + hashlib.sha256(str(path).encode()).hexdigest()[:12]
     if name in sys.modules:
         return sys.modules[name]
