@@ -319,6 +319,10 @@ def _bad_profile_files(folder) -> dict[str, str]:
         (["--psf-scale", "10.5"], "--psf-scale", "allowed range is (0, 10]"),
         (["--psf-scale", "nan"], "--psf-scale", "allowed range is (0, 10]"),
         (["--psf-scale", "inf"], "--psf-scale", "allowed range is (0, 10]"),
+        # the lead-in must hold a frame: --fps is named, not the lead-in it has no option for
+        (["--fps", "0.5"], "--fps", "0.5: allowed range is 1..125 fps (at least one frame in"),
+        (["--fps", "1e-320"], "--fps", "1e-320: allowed range is 1..125 fps"),
+        (["--fps", "0.5", "--exposure-ms", "4"], "--fps", "allowed range is 1..250 fps"),
     ],
 )
 def test_bad_options_one_line_exit_2_nothing_written(tmp_path, capsys, args, option, says):

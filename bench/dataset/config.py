@@ -21,7 +21,7 @@ from scenes.lighting import lighting_names
 from scenes.marker import check_dictionary
 from scenes.motion import MotionSpec, MotionSpecError, get_protocol
 from scenes.profile import MAX_PSF_SCALE, CameraProfile, load_profile
-from scenes.validation import MAX_SEED, FieldError
+from scenes.validation import MAX_SEED, FieldError, shown_value
 from scenes.vegetation import (
     FOLIAGE_KINDS,
     SAMPLING_PENETRATION_MM,
@@ -272,12 +272,26 @@ class DatasetConfig:
             "passes": self.passes,
             "fps": self.fps,
         }
+        own = get_protocol(protocol)
         try:
-            return dataclasses.replace(
-                get_protocol(protocol), **{k: v for k, v in overrides.items() if v is not None}
-            )
+            return dataclasses.replace(own, **{k: v for k, v in overrides.items() if v is not None})
         except MotionSpecError as exc:
+            if exc.field == "lead_in_s" and self.fps is not None:  # the lead-in is no option
+                raise DatasetConfigError("fps", self._fps_range(own.lead_in_s)) from None
             raise DatasetConfigError(exc.field, exc.detail) from None
+
+    def _fps_range(self, lead_in_s: float) -> str:
+        """Why ``fps`` is too low: the lead-in (the no-contact pose) must hold a frame; the top
+        of the range, one exposure a frame, where the exposure is a valid one."""
+        e = self.exposure_ms
+        valid = isinstance(e, int | float) and math.isfinite(e) and e > 0
+        low = f"{1.0 / lead_in_s:g}"
+        bound = f"allowed range is {low}..{1000.0 / e:g}" if valid else f"must be at least {low}"
+        return (
+            f"{shown_value(self.fps)}: {bound} fps (at least one frame in the "
+            f"{lead_in_s:g} s lead-in, the no-contact pose"
+            + (f"; at most one {e:g} ms exposure a frame)" if valid else ")")
+        )
 
     def samples(self) -> list[SampleSpec]:
         return [
