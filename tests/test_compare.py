@@ -482,3 +482,62 @@ def _timing(pipelines, fps: float):
     rows = [(r, p, name, 10, 10 / (fps - 1 + r), fps - 1 + r) for r in range(3)
             for p, name in enumerate(pipelines)]  # fmt: skip
     return Timing(pd.DataFrame(rows, columns=list(ROUND_COLUMNS)), {n: [] for n in pipelines})
+
+
+class _Reached(BaseException):
+    """compare reached its work with this sweep."""
+
+
+@pytest.fixture(scope="module")
+def fake_data(tmp_path_factory):
+    from fake_dataset import make_dataset
+
+    return make_dataset(tmp_path_factory.mktemp("compare") / "data")
+
+
+def _sweep_of(argv: list[str], monkeypatch):
+    """The sweep compare hands its work (the work itself replaced)."""
+    from bench.cli.main import main
+    from bench.evaluate import compare
+
+    def reached(dataset, pipelines, out, sweep, **_):
+        raise _Reached(sweep)
+
+    monkeypatch.setattr(compare, "run_compare", reached)
+    with pytest.raises(_Reached) as caught:
+        main(["compare", *argv])
+    return caught.value.args[0]
+
+
+def test_quick_takes_an_explicit_seeds_as_other_quick_options_do(fake_data, monkeypatch):
+    """--quick fills in only what was not given: --seeds 3 sweeps the quick levels 3 times."""
+    from bench.evaluate.sweep_config import QUICK_SWEEP, sweep_options
+
+    base = [str(fake_data), "--pipelines", "fast", "--quick"]
+    assert _sweep_of(base, monkeypatch).seeds == QUICK_SWEEP.seeds
+    sweep = _sweep_of([*base, "--seeds", "3"], monkeypatch)
+    assert sweep.seeds == 3 and sweep.points() == _sweep_of(base, monkeypatch).points()
+    assert sweep_options(sweep)[-2:] == ["--quick", "--seeds 3"]  # the figures' titles
+
+
+@pytest.mark.parametrize(
+    ("args", "says"),
+    [
+        (["--quick", "--seeds", "-7"], r"--seeds: -7: must be >= 1 \(with --quick\)$"),
+        (["--quick", "--seeds", "0"], r"--seeds: 0: must be >= 1 \(with --quick\)$"),
+        (["--quick", "--seeds", "100000000"], r"--seeds: 100000000: .* would take .*limit \d+"),
+        (["--seeds", "4"], r"--seeds: 4: must be >= 5 \(use --quick for a smoke run\)$"),
+    ],
+)
+def test_seeds_out_of_range_are_refused_with_or_without_quick(
+    fake_data, tmp_path, capsys, args, says
+):
+    import re
+
+    from bench.cli.main import main
+
+    out = tmp_path / "never"
+    assert main(["compare", str(fake_data), "--pipelines", "fast", *args, "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and re.search(says, err[0]), err
+    assert not out.exists() and not (fake_data / "scores").exists()

@@ -53,9 +53,13 @@ def add_compare_options(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--out", type=Path, help="report folder (default <dataset>/compare)")
     p.add_argument(
-        "--seeds", type=integer, default=5, help="seeds per sweep level (default 5, at least 5)"
+        "--seeds",
+        type=integer,
+        help="seeds per sweep level (default 5, at least 5; with --quick default 2, at least 1)",
     )
-    p.add_argument("--quick", action="store_true", help="a small sweep (2 seeds, few levels)")
+    p.add_argument(
+        "--quick", action="store_true", help="a small sweep (2 seeds unless --seeds, few levels)"
+    )
     p.add_argument(
         "--camera",
         metavar="PROFILE",
@@ -128,12 +132,13 @@ def cmd_compare(args: argparse.Namespace) -> int:
         return 2
 
     args.pipelines = args.pipelines or _installed_presets()
-    if args.quick:
-        sweep = QUICK_SWEEP
-    elif args.seeds < 5:
-        return fail(f"--seeds: {args.seeds}: must be >= 5 (use --quick for a smoke run)")
-    else:
-        sweep = SweepConfig(seeds=args.seeds)
+    least = 1 if args.quick else 5  # --quick fills in what was not given, as in every command
+    base = QUICK_SWEEP if args.quick else SweepConfig()
+    seeds = base.seeds if args.seeds is None else args.seeds
+    if seeds < least:
+        hint = "with --quick" if args.quick else "use --quick for a smoke run"
+        return fail(f"--seeds: {seeds}: must be >= {least} ({hint})")
+    sweep = dataclasses.replace(base, seeds=seeds)
     if not args.dataset.is_dir():
         return fail(f"{args.dataset}: not a dataset folder")
     out = args.out or args.dataset / "compare"

@@ -258,8 +258,10 @@ def sweep_options(sweep: SweepConfig) -> list[str]:
         options.append(f"camera {sweep.camera.name}")
     if sweep.dictionary != default.dictionary:
         options.append(f"family {sweep.dictionary}")
-    if sweep == dataclasses.replace(QUICK_SWEEP, **fitted):
+    if sweep == dataclasses.replace(QUICK_SWEEP, **fitted, seeds=sweep.seeds):
         options.append("--quick")
+        if sweep.seeds != QUICK_SWEEP.seeds:  # --quick --seeds N
+            options.append(f"--seeds {sweep.seeds}")
     elif sweep.seeds != default.seeds:
         options.append(f"--seeds {sweep.seeds}")
     return options
