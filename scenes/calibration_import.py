@@ -53,7 +53,7 @@ from scenes.bounded_read import (
     parse_json,
     read_bounded_text,
 )
-from scenes.camera import FisheyeCamera
+from scenes.camera import MIN_THETA_MAX_DEG, FisheyeCamera
 from scenes.input_limits import SETTINGS_BYTES, SETTINGS_DEPTH, YAML_NODES
 
 FORMATS = ("kalibr", "basalt", "ocamcalib", "opencv")
@@ -165,20 +165,21 @@ def _camera(
     def build(theta_deg: float) -> FisheyeCamera:
         return FisheyeCamera(width, height, fx, fy, cx, cy, theta_deg, model, params, shear)
 
-    try:  # a tiny image circle: the parameters are checked before any limit is computed
-        probe = build(1e-6)
+    try:  # the narrowest image circle: the parameters are checked before any limit is computed
+        probe = build(MIN_THETA_MAX_DEG)
     except (ValueError, TypeError, IndexError, ZeroDivisionError) as exc:
         raise CalibrationError(path, field_name, str(exc)) from None
     limit_deg = probe.theta_valid_max_deg
     if theta_max_deg is not None:
-        ok = isinstance(theta_max_deg, int | float) and 0 < theta_max_deg < 180
+        ok = isinstance(theta_max_deg, int | float) and MIN_THETA_MAX_DEG <= theta_max_deg < 180
         if not ok or theta_max_deg > limit_deg + 1e-9:
             top = f"{limit_deg:.4f}]" if limit_deg < 180.0 else "180)"
             raise CalibrationError(
                 path,
                 "theta_max_deg",
-                f"{theta_max_deg!r}: the {model} model is valid up to {limit_deg:.4f} deg; "
-                f"allowed range is (0, {top}",
+                f"{theta_max_deg!r}: the {model} model is valid up to {limit_deg:.4f} deg, and a "
+                f"field under {MIN_THETA_MAX_DEG:g} deg off axis is no fisheye's; allowed range is "
+                f"[{MIN_THETA_MAX_DEG:g}, {top}",
             )
         return build(float(theta_max_deg))
     corners = np.array(
@@ -189,7 +190,10 @@ def _camera(
         raise CalibrationError(
             path, "theta_max_deg", "the image reaches 180 deg from the axis; give theta_max_deg"
         )
-    return build(min(corner_deg, limit_deg))
+    try:  # a field under MIN_THETA_MAX_DEG: a telephoto's focal length, or a wrong one
+        return build(min(corner_deg, limit_deg))
+    except ValueError as exc:
+        raise CalibrationError(path, "theta_max_deg", str(exc)) from None
 
 
 # --- Kalibr -----------------------------------------------------------------------------------

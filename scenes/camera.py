@@ -62,6 +62,9 @@ from scenes.array_ops import NUMPY
 from scenes.lens_models import MODELS
 
 OPENCV_FIT_MAX_DEG = 89.0  # cv2.fisheye computes theta = atan(r / z): it breaks at 90 degrees
+#: The narrowest image circle a lens may have, in degrees off axis: a fisheye's is tens of
+#: degrees, so one under a degree is a slip (a unit, a typo; 1e-300 made a 0-degree profile).
+MIN_THETA_MAX_DEG = 1.0
 
 
 @dataclass(frozen=True)
@@ -91,8 +94,9 @@ class FisheyeCamera:
         for name in ("cx_px", "cy_px"):
             if not math.isfinite(getattr(self, name)):
                 raise ValueError(f"{name}={getattr(self, name)!r}: must be a finite number")
-        if not 0.0 < self.theta_max_deg < 180.0:
-            raise ValueError(f"theta_max_deg={self.theta_max_deg!r}: allowed range is (0, 180)")
+        if not MIN_THETA_MAX_DEG <= self.theta_max_deg < 180.0:
+            low = f"{MIN_THETA_MAX_DEG:g}"
+            raise ValueError(f"theta_max_deg={self.theta_max_deg!r}: allowed range is [{low}, 180)")
         if self.model not in MODELS:
             raise ValueError(f"model={self.model!r}: must be one of {', '.join(MODELS)}")
         shear = tuple(float(s) for s in self.shear)

@@ -97,6 +97,11 @@ def test_import_writes_a_profile_that_loads_back_and_shows(tmp_path, capsys):
     [
         (["--theta-max-deg", "130"], "--theta-max-deg: 130.0: the double_sphere model is valid up "
          "to 126.1200 deg"),
+        (["--theta-max-deg", "1e-300"], "--theta-max-deg: 1e-300: the double_sphere model is "
+         "valid up to 126.1200 deg, and a field under 1 deg off axis is no fisheye's; allowed "
+         "range is [1, 126.1200]"),  # it wrote a profile with a 0-degree field before
+        (["--theta-max-deg", "0.5"], "allowed range is [1, 126.1200]"),
+        (["--theta-max-deg", "nan"], "--theta-max-deg: nan: "),
         (["--camera-index", "7"], "--camera-index: 7: no 'cam7'"),
         (["--format", "basalt"], "FILE: "),
     ],

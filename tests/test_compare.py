@@ -541,3 +541,32 @@ def test_seeds_out_of_range_are_refused_with_or_without_quick(
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and re.search(says, err[0]), err
     assert not out.exists() and not (fake_data / "scores").exists()
+
+
+def test_a_lens_narrower_than_the_base_angle_is_refused_naming_camera(
+    fake_data, tmp_path, capsys, monkeypatch
+):
+    """Like the study, the sweep's alphas end at the lens's edge (60 deg: accepted); its base
+    angle (40 deg), where every other axis is read, is not moved: a 30-degree lens is refused
+    naming --camera, never the sweep's own base_alpha_deg."""
+    from bench.cli.main import main
+    from scenes.camera import default_camera
+    from scenes.profile import CameraProfile
+
+    def lens(theta_max_deg: float):
+        path = tmp_path / f"k{theta_max_deg:g}.json"
+        camera = dataclasses.replace(default_camera(), theta_max_deg=theta_max_deg)
+        path.write_text(json.dumps(CameraProfile(name=path.stem, lens=camera).to_json()))
+        return str(path)
+
+    base = [str(fake_data), "--pipelines", "fast", "--quick", "--camera"]
+    assert max(_sweep_of([*base, lens(60.0)], monkeypatch).alphas_deg) == 60.0
+    out = tmp_path / "never"
+    assert main(["compare", *base, lens(30.0), "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [
+        f"whiskerbench compare: error: --camera {tmp_path}/k30.json: its lens sees 0..30 deg off "
+        "axis; the sweep's base angle is 40 deg (every axis but alpha is read there): a lens "
+        "that sees at least 40 deg is needed"
+    ]
+    assert not out.exists() and not (fake_data / "scores").exists()

@@ -117,6 +117,24 @@ def _dataset_lens(dataset: Path):
         return None
 
 
+def _on_camera(sweep, camera, option: str | None):
+    """The sweep on ``camera``: its built-in alphas end at the lens's edge, as the study's do;
+    its base angle is not fitted, since every other axis is read there: a lens that does not
+    see it is refused, naming --camera, or the dataset whose camera it is."""
+    from bench.study.config import alphas_within
+
+    theta_max, base = camera.lens.theta_max_deg, sweep.base_alpha_deg
+    if base > theta_max:
+        culprit = f"--camera {option}" if option is not None else "DATASET: its camera.json"
+        raise ValueError(
+            f"{culprit}: its lens sees 0..{theta_max:g} deg off axis; the sweep's base angle is "
+            f"{base:g} deg (every axis but alpha is read there): a lens that sees at least "
+            f"{base:g} deg is needed"
+        )
+    alphas = alphas_within(sweep.alphas_deg, camera)
+    return dataclasses.replace(sweep, camera=camera, alphas_deg=alphas)
+
+
 def cmd_compare(args: argparse.Namespace) -> int:
     import pandas as pd
 
@@ -124,7 +142,6 @@ def cmd_compare(args: argparse.Namespace) -> int:
     from bench.evaluate.leaders import band_lines, spread_verdict
     from bench.evaluate.score import dataset_family
     from bench.evaluate.sweep_config import QUICK_SWEEP, SweepConfig
-    from bench.study.config import alphas_within
     from pipeline.backends import BackendUnavailableError
 
     def fail(message: str) -> int:
@@ -157,9 +174,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
     )
     try:
         camera = _sweep_camera(args.camera, args.dataset)
-        if camera is not None:  # the sweep's built-in alphas end at this camera's edge
-            alphas = alphas_within(sweep.alphas_deg, camera)
-            sweep = dataclasses.replace(sweep, camera=camera, alphas_deg=alphas)
+        if camera is not None:
+            sweep = _on_camera(sweep, camera, args.camera)
         family = dataset_family(args.dataset)
         if family is not None:  # the sweeps render the dataset's marker family
             sweep = dataclasses.replace(sweep, dictionary=family)
