@@ -18,7 +18,7 @@ from bench.cli.main import main
 from bench.evaluate import score_units
 from bench.evaluate.score import score_dataset
 from pipeline.presets import PRESETS, get_pipeline
-from scenes.tables import check_labels
+from scenes.tables import CORNER_COLUMNS, check_labels
 
 pytestmark = pytest.mark.usefixtures("figures_not_drawn")
 
@@ -131,7 +131,7 @@ def _repeat_row(t):
 
 def _nan_corner(t):
     t = t.copy()
-    t.loc[t.index[t["visible"]][0], "c0_x_px"] = np.nan
+    t.loc[t.index[t["visible"]][0], CORNER_COLUMNS[0][0]] = np.nan
     return t
 
 
@@ -169,7 +169,7 @@ def test_check_labels_names_the_frame_and_marker():
     with pytest.raises(ValueError, match=r"labels: no rows for frame 3 \(of 0..3\)"):
         check_labels(table, 4, "labels")
     table.loc[3, "visible"] = True
-    table.loc[3, "c2_y_px"] = np.inf
+    table.loc[3, CORNER_COLUMNS[2][1]] = np.inf
     with pytest.raises(ValueError, match="frame 1, marker 1: visible, with a corner"):
         check_labels(table, 3, "labels")
 
