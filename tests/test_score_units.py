@@ -93,6 +93,7 @@ def _tree(folder) -> list[str]:
     return sorted(str(p.relative_to(folder)) for p in folder.rglob("*"))
 
 
+@pytest.mark.slow  # the rendered pair
 def test_a_folder_with_another_datasets_samples_is_refused_before_any_write(
     rendered_pair, tmp_path, capsys
 ):
@@ -130,6 +131,7 @@ def _nan_corner(t):
     return t
 
 
+@pytest.mark.slow  # the rendered pair
 @pytest.mark.parametrize(
     "edit, says",
     [
