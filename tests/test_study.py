@@ -168,6 +168,13 @@ def test_a_value_listed_twice_is_refused(field, value):
     assert info.value.field == field
 
 
+@pytest.mark.parametrize("images", [True, 0, 2.5, 10**9])
+def test_an_image_count_that_is_no_count_is_refused(images):
+    with pytest.raises(StudyConfigError, match="must be an integer in 1") as info:
+        StudyConfig(**{**TINY, "images": images})
+    assert info.value.field == "images"
+
+
 def test_wilson_settles_a_cell_at_the_first_count_that_excludes_095():
     assert settled(0, IMAGE_STEPS[0])  # never detected: settled after the first batch
     assert not settled(30, 30) and not settled(72, 72) and settled(73, 73) and settled(80, 80)

@@ -104,7 +104,11 @@ class StudyConfig:
             )
         if any(not 0 <= p <= MAX_PHI_DEG for p in self.phis_deg):
             fail("phis_deg", f"{list(self.phis_deg)}: allowed range is 0..{MAX_PHI_DEG:g} deg")
-        if int(self.images) != self.images or not 1 <= self.images <= IMAGE_STEPS[-1]:
+        if (
+            isinstance(self.images, bool)  # True is no count (it equals 1)
+            or int(self.images) != self.images
+            or not 1 <= self.images <= IMAGE_STEPS[-1]
+        ):
             fail("images", f"{self.images}: must be an integer in 1..{IMAGE_STEPS[-1]}")
         if not (math.isfinite(self.distance_mm) and 0 < self.distance_mm <= MAX_DISTANCE_MM):
             fail("distance_mm", f"{self.distance_mm}: allowed range is (0, {MAX_DISTANCE_MM:g}] mm")
