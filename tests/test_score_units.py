@@ -175,3 +175,20 @@ def test_a_pipeline_name_instead_of_its_config_is_a_clear_type_error(tmp_path):
     with pytest.raises(TypeError, match="'fast' is a str, not a PipelineConfig; get_pipeline"):
         score_dataset(tmp_path, "fast", tmp_path / "out")
     assert not (tmp_path / "out").exists()
+
+
+def test_nothing_is_reused_for_a_plugin_or_another_tools_detections_or_other_libraries(
+    monkeypatch,
+):
+    from types import SimpleNamespace
+
+    own = score_units.run_units("s", FAST, external=False)
+    assert own == score_units.unit_settings("s") and own != score_units.unit_settings("t")
+    plugin = SimpleNamespace(detector=SimpleNamespace(backend="plugin:mine:detect"))
+    assert score_units.run_units("s", plugin, external=False) is None  # the user's code
+    assert score_units.run_units("s", FAST, external=True) is None  # their file is no setting
+    versions = dict(score_units.package_versions())
+    monkeypatch.setattr(
+        score_units, "package_versions", lambda: {**versions, "numpy": "0.0"}
+    )  # another library, another answer: nothing reused
+    assert score_units.run_units("s", FAST, external=False) != own

@@ -40,7 +40,7 @@ from bench.common.run_folder import claim, open_folder  # noqa: E402
 from bench.dataset.verify import VerifiedDataset, verify_dataset  # noqa: E402
 from bench.evaluate.grid_plot import plot_grid
 from bench.evaluate.results_file import ExternalDetections, frames_per_s  # noqa: E402
-from bench.evaluate.score_units import check_own_samples, reused_row, seal_row, unit_settings
+from bench.evaluate.score_units import check_own_samples, reused_row, run_units, seal_row
 from pipeline.presets import PipelineConfig  # noqa: E402
 from scenes.array import ArraySpec  # noqa: E402
 from scenes.marker import check_dictionary  # noqa: E402
@@ -356,8 +356,7 @@ def score_dataset(
     check_own_samples(out_dir, records)  # refused before anything is written
     for sample_id, record in sorted(records.items()):  # every sample's labels, before any work
         _checked_labels(dataset / sample_id, record)
-    # another tool's detections are scored anew: their file is not in the settings
-    units = unit_settings(settings_sha256) if external is None else None
+    units = run_units(settings_sha256, config, external is not None)
     with open_folder(out_dir, "score", ("", *records), settings_sha256):
         thresholds: dict[str, float] = {}
         rows, reused = [], []

@@ -5,11 +5,12 @@ README's quick start) or with one pipeline added reruns none of the finished wor
 
 A sample is reused only when its record (``<sample id>/score.json``, :mod:`bench.common.units`)
 is intact and was made by the same pipeline settings on the same dataset path, with the same
-video (SHA-256), the same foliage threshold handed in from its twin, and the same code: the
-hash of every Python file of the project (:func:`code_sha256`), so an edited pipeline is never
-answered from its old detections; and when every file of its detection folder hashes as
-recorded. Anything else is detected again. Another tool's detections (``--results``) are always
-scored anew: their file is not part of the settings.
+video (SHA-256), the same foliage threshold handed in from its twin, and the same code and
+libraries: the hash of every Python file of the project (:func:`code_sha256`) and the versions
+of the packages that shape the answer, so an edited pipeline or an upgraded library is never
+answered from old detections; and when every file of its detection folder hashes as recorded.
+Anything else is detected again. Another tool's detections (``--detections``) and a detector
+plugin's (its code is the user's) are always scored anew.
 """
 
 from __future__ import annotations
@@ -17,9 +18,10 @@ from __future__ import annotations
 import functools
 import hashlib
 import json
+from importlib import metadata
 from pathlib import Path
 
-from bench.common.manifest import json_sha256, sha256
+from bench.common.manifest import json_sha256, package_versions, sha256
 from bench.common.units import reusable, write_unit
 
 RECORD = "score.json"  # in the sample's detection folder
@@ -39,9 +41,29 @@ def code_sha256() -> str:
     return digest.hexdigest()
 
 
+#: The peer detectors' distributions: their version is part of a peer pipeline's answer.
+PEERS = ("locus-tag", "apriltag-python")
+
+
 def unit_settings(settings_sha256: str) -> str:
-    """The settings hash of a score run's units: its settings and the code."""
-    return json_sha256({"score": settings_sha256, "code": code_sha256()})
+    """The settings hash of a score run's units: its settings, the code and the versions of
+    the libraries that shape the answer (OpenCV, NumPy, ..., the peers)."""
+    versions = dict(package_versions())
+    for peer in PEERS:
+        try:
+            versions[peer] = metadata.version(peer)
+        except metadata.PackageNotFoundError:
+            versions[peer] = None
+    return json_sha256({"score": settings_sha256, "code": code_sha256(), "versions": versions})
+
+
+def run_units(settings_sha256: str, config, external: bool) -> str | None:
+    """The units' settings hash of a score run, or None where nothing may be reused: another
+    tool's detections (their file is not in the settings) or a detector plugin's (its code is
+    the user's, outside :func:`code_sha256`)."""
+    if external or str(config.detector.backend).startswith("plugin:"):
+        return None
+    return unit_settings(settings_sha256)
 
 
 def check_own_samples(out_dir: Path, sample_ids) -> None:
