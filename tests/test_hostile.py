@@ -499,6 +499,22 @@ def test_doctored_dataset(rendered_pair, tmp_path, capsys, command, how):
 # --- a bug, and Ctrl-C
 
 
+def test_a_crash_in_native_code_prints_the_python_stack(tmp_path):
+    """A segfault (in Dr.Jit, OpenCV, a peer) after a command has started shows where it was:
+    the command line enables faulthandler."""
+    script = (
+        "import ctypes; from bench.cli.main import main; main(['camera', 'show', 'ideal']); "
+        "ctypes.string_at(0)"
+    )
+    root = Path(__file__).resolve().parents[1]
+    done = subprocess.run(
+        [sys.executable, "-c", script], cwd=tmp_path, capture_output=True, text=True,
+        env={"PATH": "/usr/bin:/bin", "PYTHONPATH": str(root)},
+    )  # fmt: skip
+    assert done.returncode < 0 and "Fatal Python error: Segmentation fault" in done.stderr
+    assert 'File "<string>", line 1' in done.stderr  # the Python stack, to the crash
+
+
 def test_internal_error_is_a_short_bug_report(tmp_path, capsys, monkeypatch):
     import bench.study.run
 

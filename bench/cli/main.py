@@ -8,8 +8,10 @@ stdout closed early (``| head``) a quiet exit code 141, as a shell reports SIGPI
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import errno
+import faulthandler
 import functools
 import re
 import sys
@@ -404,6 +406,10 @@ def main(argv: list[str] | None = None) -> int:
     """Run one command; its exit code. A reader that closes stdout early (``| head -1``)
     wanted no more output: the command ends quietly, with SIGPIPE's shell exit code."""
     printable_stdout()
+    # a crash in native code (a segfault) prints the Python stack: what a report needs; not
+    # where stderr is closed or a capture without a file
+    with contextlib.suppress(RuntimeError, ValueError, OSError):  # RuntimeError: stderr None
+        faulthandler.enable()
     try:
         try:
             return _main(argv)
