@@ -5,7 +5,9 @@ and a quiet end when the reader of stdout goes away early (``| head -1``)."""
 
 from __future__ import annotations
 
+import contextlib
 import errno
+import faulthandler
 import os
 import select
 import signal
@@ -46,6 +48,15 @@ def stdout_closed() -> bool:
     except (OSError, ValueError):  # no file descriptor (a test's capture): not a pipe
         return False
     return any(events & select.POLLERR for _, events in poll.poll(0))
+
+
+def prepare_streams() -> None:
+    """stdout that prints any path (:func:`printable_stdout`), and a crash in native code (a
+    segfault in Dr.Jit, OpenCV, a peer) that prints the Python stack, what a report needs
+    (``faulthandler``; not where stderr is closed or a capture without a file)."""
+    printable_stdout()
+    with contextlib.suppress(RuntimeError, ValueError, OSError):  # RuntimeError: stderr None
+        faulthandler.enable()
 
 
 def printable_stdout() -> None:

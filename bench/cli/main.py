@@ -8,10 +8,8 @@ stdout closed early (``| head``) a quiet exit code 141, as a shell reports SIGPI
 from __future__ import annotations
 
 import argparse
-import contextlib
 import dataclasses
 import errno
-import faulthandler
 import functools
 import re
 import sys
@@ -44,7 +42,7 @@ from bench.cli.exits import (
     bug_report,
     end_quietly,
     environment_failure,
-    printable_stdout,
+    prepare_streams,
     stdout_closed,
     undecodable_argument,
 )
@@ -405,11 +403,7 @@ def command_name(args: argparse.Namespace) -> str:
 def main(argv: list[str] | None = None) -> int:
     """Run one command; its exit code. A reader that closes stdout early (``| head -1``)
     wanted no more output: the command ends quietly, with SIGPIPE's shell exit code."""
-    printable_stdout()
-    # a crash in native code (a segfault) prints the Python stack: what a report needs; not
-    # where stderr is closed or a capture without a file
-    with contextlib.suppress(RuntimeError, ValueError, OSError):  # RuntimeError: stderr None
-        faulthandler.enable()
+    prepare_streams()
     try:
         try:
             return _main(argv)
