@@ -381,8 +381,7 @@ def score_dataset(
                         verified.digests[f"{sample_id}/video.mp4"],
                         *_external_of(external, sample_id, fps),
                     )
-                    unit = (out_dir / sample_id, units, sample_id, task.threshold)
-                    found = units and reused_row(*unit, task.video_sha256)
+                    found = reused_row(out_dir, units, task) if units else None
                     if found:
                         done[sample_id] = found
                         reused.append(sample_id)
@@ -392,10 +391,9 @@ def score_dataset(
                 for row, threshold in pool.map(
                     _score_sample, list(tasks.values()), desc=desc, unit="sample"
                 ):
-                    sample_id, task = row["sample_id"], tasks[row["sample_id"]]
+                    sample_id = row["sample_id"]
                     if units:  # sealed, and read back as a rerun will read it
-                        unit = (out_dir / sample_id, units, sample_id, task.threshold)
-                        row, threshold = seal_row(*unit, task.video_sha256, row, threshold)
+                        row, threshold = seal_row(out_dir, units, tasks[sample_id], row, threshold)
                     done[sample_id] = row, threshold
                 for sample_id, (row, threshold) in sorted(done.items()):
                     rows.append(row)

@@ -86,16 +86,20 @@ def check_own_samples(out_dir: Path, sample_ids) -> None:
         )
 
 
-def _expect(sample_id: str, threshold: float | None, video_sha256: str) -> dict:
-    return {"unit": sample_id, "threshold_in": threshold, "video_sha256": video_sha256}
+def _unit(out_dir: Path, task) -> tuple[Path, dict]:
+    """A sample task's folder of detections and the fields its record must hold to be reused:
+    its id, the twin's threshold handed in and its video's SHA-256 (``task``: a
+    :class:`bench.evaluate.score._SampleTask`)."""
+    sample_id = task.record["sample_id"]
+    expect = {"unit": sample_id, "threshold_in": task.threshold, "video_sha256": task.video_sha256}
+    return Path(out_dir) / sample_id, expect
 
 
-def reused_row(
-    folder: Path, settings: str, sample_id: str, threshold: float | None, video_sha256: str
-) -> tuple[dict, float | None] | None:
-    """(row, foliage threshold) of a sample scored before with these settings, code, threshold
-    and video, its files verified; None when it must be scored."""
-    record = reusable(folder / RECORD, settings, _expect(sample_id, threshold, video_sha256))
+def reused_row(out_dir: Path, settings: str, task) -> tuple[dict, float | None] | None:
+    """(row, foliage threshold) of ``task``'s sample scored before into ``out_dir`` with these
+    settings, code, threshold and video, its files verified; None when it must be scored."""
+    folder, expect = _unit(out_dir, task)
+    record = reusable(folder / RECORD, settings, expect)
     try:
         return _row(record["row"]), record["threshold"]
     except (TypeError, KeyError, ValueError):  # none, or not one this module wrote
@@ -103,16 +107,12 @@ def reused_row(
 
 
 def seal_row(
-    folder: Path,
-    settings: str,
-    sample_id: str,
-    threshold_in: float | None,
-    video_sha256: str,
-    row: dict,
-    threshold: float | None,
+    out_dir: Path, settings: str, task, row: dict, threshold: float | None
 ) -> tuple[dict, float | None]:
-    """Record a sample just scored (its detection folder's files by hash); return its row and
-    threshold as a rerun reads them back (plain JSON values), so both runs' tables are alike."""
+    """Record ``task``'s sample just scored (its detection folder's files by hash); return its
+    row and threshold as a rerun reads them back (plain JSON values), so both runs' tables are
+    alike."""
+    folder, expect = _unit(out_dir, task)
     folder.mkdir(parents=True, exist_ok=True)
     files = {
         p.relative_to(folder).as_posix(): sha256(p)
@@ -120,7 +120,7 @@ def seal_row(
         if p.is_file() and p.name != RECORD
     }
     record = {
-        **_expect(sample_id, threshold_in, video_sha256),
+        **expect,
         "settings_sha256": settings,
         "files": files,
         "row": list(row.items()),  # pairs: the columns' order survives the sorted JSON
