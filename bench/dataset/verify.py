@@ -4,8 +4,9 @@ The dataset manifest lists the SHA-256 of every sample's files, ``sample.json`` 
 each ``sample.json`` lists those of its other files. :func:`verify_dataset` hashes every file
 once and refuses, naming the file, a dataset where they disagree: a video swapped between
 samples, edited labels or an edited ground truth (branch positions in ``sample.json``) must never
-be scored. Sample ids are plain folder names equal to their folder's, so no id leads a reader or
-writer outside its folders.
+be scored. Files edited and re-sealed with their hashes must still fit the sample: the video
+holds ``sample.json``'s frames and the labels one row per marker for each. Sample ids are plain
+folder names equal to their folder's, so no id leads a reader or writer outside its folders.
 """
 
 from __future__ import annotations
@@ -128,7 +129,34 @@ def _verify_sample(folder: Path, sample_id: str, files: dict, digests: dict[str,
             raise DatasetIntegrityError(
                 f"{path}: SHA-256 differs from {record_path.name}'s (swapped or edited?)"
             )
+    _check_fit(folder / sample_id, record)
     return record
+
+
+def _check_fit(folder: Path, record: dict) -> None:
+    """The video holds sample.json's frames and the labels one row per marker for each of them
+    (:func:`scenes.tables.check_labels`): files edited and re-sealed with their hashes pass the
+    check above. DatasetIntegrityError naming the file otherwise."""
+    import pandas as pd  # here, not at import: `import whiskerbench` loads no pandas or OpenCV
+
+    from bench.common.video import video_info
+    from scenes.tables import check_labels
+
+    video, labels = folder / "video.mp4", folder / "labels.parquet"
+    n_frames = video_info(video).frame_count
+    if n_frames != record["frames"]:
+        raise DatasetIntegrityError(
+            f"{video}: {n_frames} frames where sample.json says {record['frames']}"
+        )
+    try:
+        table = pd.read_parquet(labels)
+    except Exception as exc:  # pyarrow's errors have no common base but Exception
+        reason = type(exc).__name__
+        raise DatasetIntegrityError(f"{labels}: not a Parquet table ({reason})") from None
+    try:
+        check_labels(table, n_frames, labels)
+    except ValueError as exc:
+        raise DatasetIntegrityError(str(exc)) from None
 
 
 def read_record(path: Path, sample_id: str) -> dict:

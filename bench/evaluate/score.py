@@ -49,7 +49,6 @@ from scenes.tables import (  # noqa: E402
     JOIN_KEY,
     OWN_POSE_PREFIX,
     TRUTH_SUFFIX,
-    check_labels,
     check_table,
     corners_of,
     rotations_of,
@@ -241,7 +240,8 @@ def _score_sample(task: _SampleTask, _context: None) -> tuple[dict, float | None
     from scenes.profile import load_profile
 
     record, folder = task.record, task.folder
-    labels, n_frames = _checked_labels(folder, record)
+    labels = pd.read_parquet(folder / "labels.parquet")  # fits the sample: verify_dataset
+    n_frames = record["frames"]  # the video's too (verify_dataset)
     camera = load_profile(folder / "camera.json").lens  # a profile, or an old bare camera
     common = sample_columns(record)
     out = task.out_dir / record["sample_id"]
@@ -285,23 +285,6 @@ def _score_sample(task: _SampleTask, _context: None) -> tuple[dict, float | None
         "refine_failures": sum(result["refine_failures"].values()),
     }
     return row, threshold
-
-
-def _checked_labels(folder: Path, record: dict) -> tuple[pd.DataFrame, int]:
-    """A sample's labels and its video's frame count, once both agree with its ``sample.json``
-    (:func:`scenes.tables.check_labels`); ValueError naming the file otherwise."""
-    from bench.common.video import video_info
-
-    video, path = folder / "video.mp4", folder / "labels.parquet"
-    n_frames = video_info(video).frame_count
-    if n_frames != record["frames"]:
-        raise ValueError(f"{video}: {n_frames} frames where sample.json says {record['frames']}")
-    try:
-        labels = pd.read_parquet(path)
-    except Exception as exc:  # pyarrow's errors have no common base but Exception
-        raise ValueError(f"{path}: not a Parquet table ({type(exc).__name__})") from None
-    check_labels(labels, n_frames, path)
-    return labels, n_frames
 
 
 def score_dataset(
@@ -354,8 +337,6 @@ def score_dataset(
         settings["results"] = {"source": str(external.source), "fps": fps}
     settings_sha256 = json_sha256(settings)
     check_own_samples(out_dir, records)  # refused before anything is written
-    for sample_id, record in sorted(records.items()):  # every sample's labels, before any work
-        _checked_labels(dataset / sample_id, record)
     units = run_units(settings_sha256, config, external is not None)
     with open_folder(out_dir, "score", ("", *records), settings_sha256):
         thresholds: dict[str, float] = {}
