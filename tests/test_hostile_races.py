@@ -94,7 +94,8 @@ def test_two_studies_started_together_on_one_out(tmp_path, variant):
     base = ["detectability", "--sizes", "13.2", "--alphas", "0,85", "--phis", "0", "--out", out]
     base += ["--workers", "1"]  # the race is on the folder, claimed by the parent: no pool
     results = _together([*base, "--images", "4"], [*base, "--images", "6"])
-    assert sorted(code for _, code, _ in results) == [0, 2], results
+    codes = sorted(code for _, code, _ in results)
+    assert codes == [0, 2], "\n".join(f"pid {p} exit {c}:\n{err}" for p, c, err in results)
     _one_refused(results, out)
 
 

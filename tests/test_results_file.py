@@ -322,6 +322,33 @@ def test_bad_branch_files_are_refused(fake, tmp_path, capsys, rows, says) -> Non
     assert not (tmp_path / "out").exists()
 
 
+def test_a_parquet_nan_is_refused_and_a_null_is_an_empty_cell(fake, tmp_path, capsys) -> None:
+    """pandas reads a float NaN and a null alike; in a branches file only null means "no
+    branch found" (a NaN is refused as ``nan`` text is in CSV)."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    path = tmp_path / "branches.parquet"
+
+    def write(left: list, right: list) -> None:
+        columns = {
+            "sample_id": pa.array([LONG, SHORT]),
+            "whisker_left": pa.array(left, pa.float64()),
+            "whisker_right": pa.array(right, pa.float64()),
+        }
+        pq.write_table(pa.table(columns), path)
+
+    write([None, float("nan")], [None, float("nan")])
+    assert _branches(fake, path, tmp_path / "out") == 2
+    err = capsys.readouterr().err.strip()
+    assert "row 2: column 'whisker_left'" in err and "an empty cell" in err, err
+    assert not (tmp_path / "out").exists()
+    write([None, None], [None, None])
+    assert _branches(fake, path, tmp_path / "out") == 0
+    outcomes = _samples(tmp_path / "out")["outcome"]
+    assert outcomes[LONG] == "correct" and outcomes[SHORT] == "false_negative"
+
+
 def test_branch_files_columns_hash_and_options(fake, tmp_path, capsys) -> None:
     path, out = tmp_path / "branches.csv", tmp_path / "out"
     path.write_text(f"sample_id,whisker_left,whisker_right,score\n{LONG},,,1\n{SHORT},,,1\n")

@@ -73,10 +73,12 @@ def read_branches(
         path, ~ids.isin(list(n_whiskers)).to_numpy(), table, "sample_id", "a sample of this dataset"
     )
     gaps = {}
+    nans = _parquet_nans(path, GAP_COLUMNS) if path.suffix == ".parquet" else {}
     for name in GAP_COLUMNS:
         column = table[name]
         numbers = pd.to_numeric(column, errors="coerce").to_numpy(dtype=float)
         bad = np.isnan(numbers) & column.notna().to_numpy() | np.isinf(numbers)
+        bad |= nans.get(name, False)
         bad |= np.isfinite(numbers) & (numbers != np.round(numbers))
         _first(path, bad, table, name, "an integer (a whisker index), or an empty cell")
         gaps[name] = numbers
@@ -114,6 +116,21 @@ def read_branches(
             "of the dataset (one empty row: no branch found)"
         )
     return {s: sorted(g for g in out[s] if g) for s in sorted(out)}
+
+
+def _parquet_nans(path: Path, names: tuple[str, ...]) -> dict[str, np.ndarray]:
+    """Per floating column of a Parquet file, its cells holding a NaN value: pandas reads NaN
+    and null alike, but only null is an empty cell (a NaN is refused, as ``nan`` text in CSV)."""
+    import pyarrow.compute as pc
+    import pyarrow.parquet as pq
+    import pyarrow.types as pat
+
+    columns = pq.read_table(path, columns=list(names))
+    return {
+        name: pc.fill_null(pc.is_nan(columns[name]), False).to_numpy(zero_copy_only=False)
+        for name in names
+        if pat.is_floating(columns[name].type)
+    }
 
 
 def _listing() -> str:
