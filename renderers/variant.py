@@ -130,6 +130,14 @@ def init_worker(variant: str | None, threads: int | None = None) -> str:
     return chosen
 
 
+def set_threads(threads: int) -> None:
+    """Dr.Jit's thread count in this process, changed only when it differs (between frames)."""
+    import drjit as dr
+
+    if dr.thread_count() != threads:
+        dr.set_thread_count(threads)
+
+
 def _main() -> int:
     llvm = find_libllvm()
     if "--has-llvm" in sys.argv:

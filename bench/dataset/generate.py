@@ -13,6 +13,7 @@ from bench.common.manifest import sha256
 from bench.common.resumable import ResumableRun, finish_run, open_run
 from bench.common.units import DAMAGED, DONE
 from bench.dataset.config import DatasetConfig, DatasetConfigError, SampleSpec
+from bench.dataset.core_share import CoreShare
 from bench.dataset.format import FORMAT_VERSION
 from bench.dataset.sample import run_sample, sample_state
 from renderers.variant import init_worker
@@ -23,10 +24,11 @@ class _SampleTask:
     config: DatasetConfig
     sample: SampleSpec
     out_dir: Path
+    share: CoreShare | None  # a local pool's cores, split between the samples in progress
 
 
 def _run_task(task: _SampleTask, _variant: str) -> dict:
-    return run_sample(task.config, task.sample, task.out_dir)
+    return run_sample(task.config, task.sample, task.out_dir, task.share)
 
 
 def foliage_groups(records: list[dict]) -> dict[str, list[str]]:
@@ -119,14 +121,19 @@ def _make(
     ``listed`` sample (specs of this grid, ids of earlier runs)."""
     out_dir = run.folder
     samples = [s for s in listed if isinstance(s, SampleSpec)]
-    inline = effective_executor(executor, workers, scheduler) == "inline"
-    # Every worker may use every core: while one worker finishes the last sample alone, its
-    # kernels take the idle core too (3 quick samples on 2 workers: a third of the run).
-    threads = None if inline else (os.cpu_count() or 1)
+    ran_by = effective_executor(executor, workers, scheduler)
+    # Inline, this process keeps every core. A local pool's workers split the cores between the
+    # samples in progress (bench/dataset/core_share.py); a Dask worker, whose machine and
+    # neighbours this process cannot see, uses every core of its own.
+    threads = None if ran_by == "inline" else (os.cpu_count() or 1)
     chosen = init_worker(variant)
     start = time.perf_counter()
-    tasks = [_SampleTask(config, s, out_dir) for s in todo]
-    pool_workers = min(workers, len(tasks)) or 1
+    pool_workers = min(workers, len(todo)) or 1
+    share = None
+    if ran_by == "pool":
+        folders = tuple(out_dir / s.sample_id for s in todo)
+        share = CoreShare(folders, pool_workers, os.cpu_count() or 1, time.time())
+    tasks = [_SampleTask(config, s, out_dir, share) for s in todo]
     with TaskPool(pool_workers, init_worker, (chosen, threads), executor, scheduler) as pool:
         ran_on = pool.describe()
         new = list(pool.map(_run_task, tasks, desc="samples", unit="sample", progress=progress))

@@ -29,7 +29,9 @@ from bench.common.atomic import atomic_path, write_json
 from bench.common.manifest import sha256
 from bench.common.units import unit_state, write_unit
 from bench.dataset.config import SAMPLE_FILES, DatasetConfig, SampleSpec
+from bench.dataset.core_share import CHECK_EVERY_FRAMES, CoreShare
 from bench.dataset.labels import corners_of_frame, label_table
+from renderers.variant import set_threads
 from scenes.branch_reach import gap_of_branch
 from scenes.lighting import get_lighting
 from scenes.marker import check_dictionary
@@ -157,8 +159,14 @@ def sample_recorder(
     )
 
 
-def run_sample(config: DatasetConfig, sample: SampleSpec, out_dir: Path) -> dict:
-    """Simulate, render and label one sample into ``out_dir / sample_id``; return its record."""
+def run_sample(
+    config: DatasetConfig, sample: SampleSpec, out_dir: Path, share: CoreShare | None = None
+) -> dict:
+    """Simulate, render and label one sample into ``out_dir / sample_id``; return its record.
+
+    ``share``: the cores split with the run's other samples in progress (a local pool), looked
+    at every :data:`~bench.dataset.core_share.CHECK_EVERY_FRAMES` frames; None keeps Dr.Jit's
+    thread count as it is."""
     from bench.common.video import BackgroundWriter, write_preview, write_video
 
     t_start = time.perf_counter()
@@ -180,6 +188,8 @@ def run_sample(config: DatasetConfig, sample: SampleSpec, out_dir: Path) -> dict
     t_frames = time.perf_counter()
     with video, preview:
         for f in range(n_frames):
+            if share is not None and f % CHECK_EVERY_FRAMES == 0:
+                set_threads(share.threads())
             frame = frames.frame(f)
             video.put(frame)
             preview.put(frame)
