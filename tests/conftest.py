@@ -1,6 +1,19 @@
 """Shared fixtures: the Mitsuba variant is chosen once per test session."""
 
+import os
+
 import pytest
+
+
+def pytest_configure(config):
+    """Each of N xdist workers renders with cores / N Dr.Jit threads: a pool of one thread per
+    core in every worker puts N times as many threads as cores on the machine, and a parallel
+    kernel then waits for threads the other workers descheduled (bench/dataset/core_share.py)."""
+    workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
+    if workers > 1 and "PYTEST_XDIST_WORKER" in os.environ:
+        import drjit as dr
+
+        dr.set_thread_count(max(1, (os.cpu_count() or 1) // workers))
 
 
 @pytest.hookimpl(trylast=True)  # after pytest's own reordering by fixture scope
