@@ -11,6 +11,9 @@ run). ``docs/video_speed.md`` has the measurements.
 
 from __future__ import annotations
 
+import os
+import time
+from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -37,6 +40,18 @@ class CoreShare:
         unfinished = sum(not _written_since(f / "sample.json", self.started) for f in self.folders)
         running = max(1, min(self.workers, unfinished))
         return max(1, self.cores // running)
+
+
+def core_share(
+    executor: str, scheduler: str | None, folders: Iterable[Path], workers: int
+) -> CoreShare | None:
+    """The share of this machine's cores for a run's sample ``folders`` made by ``workers`` on
+    ``executor`` (as :func:`bench.common.executor.effective_executor` names it): None inline
+    (this process keeps every core) and on a scheduler's cluster (machines this process cannot
+    see: each worker uses all of its own)."""
+    if executor == "inline" or scheduler is not None:
+        return None
+    return CoreShare(tuple(folders), workers, os.cpu_count() or 1, time.time())
 
 
 def _written_since(path: Path, started: float) -> bool:

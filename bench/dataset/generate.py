@@ -13,7 +13,7 @@ from bench.common.manifest import sha256
 from bench.common.resumable import ResumableRun, finish_run, open_run
 from bench.common.units import DAMAGED, DONE
 from bench.dataset.config import DatasetConfig, DatasetConfigError, SampleSpec
-from bench.dataset.core_share import CoreShare
+from bench.dataset.core_share import CoreShare, core_share
 from bench.dataset.format import FORMAT_VERSION
 from bench.dataset.sample import run_sample, sample_state
 from renderers.variant import init_worker
@@ -122,17 +122,14 @@ def _make(
     out_dir = run.folder
     samples = [s for s in listed if isinstance(s, SampleSpec)]
     ran_by = effective_executor(executor, workers, scheduler)
-    # Inline, this process keeps every core. A local pool's workers split the cores between the
-    # samples in progress (bench/dataset/core_share.py); a Dask worker, whose machine and
-    # neighbours this process cannot see, uses every core of its own.
+    # Inline, this process keeps every core; workers on this machine split them between the
+    # samples in progress (bench/dataset/core_share.py).
     threads = None if ran_by == "inline" else (os.cpu_count() or 1)
     chosen = init_worker(variant)
     start = time.perf_counter()
     pool_workers = min(workers, len(todo)) or 1
-    share = None
-    if ran_by == "pool":
-        folders = tuple(out_dir / s.sample_id for s in todo)
-        share = CoreShare(folders, pool_workers, os.cpu_count() or 1, time.time())
+    folders = [out_dir / s.sample_id for s in todo]
+    share = core_share(ran_by, scheduler, folders, pool_workers)
     tasks = [_SampleTask(config, s, out_dir, share) for s in todo]
     with TaskPool(pool_workers, init_worker, (chosen, threads), executor, scheduler) as pool:
         ran_on = pool.describe()
