@@ -10,6 +10,7 @@ fallback when no JIT backend works).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import drjit as dr
@@ -26,6 +27,10 @@ from scenes.lighting import Lighting
 #: wavefront size compiles a new kernel (~130 ms here), one fixed size compiles once and then
 #: reuses it.
 CHUNK_RAYS = 1 << 17
+#: Every kernel's width is a whole number of packets of this many rays: a partial last packet
+#: of an edge pass (12 samples a pixel: 16,380 rays) came with a rare segfault in a Dr.Jit
+#: thread (``docs/reliability.md``). The padding repeats a real pixel and is dropped.
+PACKET_LANES = 16
 #: A pass of fewer than CHUNK_RAYS / 2 rays (a crop) goes in chunks of this size instead, so that
 #: it is not padded to a whole CHUNK_RAYS; a worker that renders only crops compiles one kernel.
 SMALL_CHUNK_RAYS = 1 << 14
@@ -67,11 +72,13 @@ class BlockTracer:
             return self._trace_scalar(points, seed, positions)
         chunk = CHUNK_RAYS if 2 * m * k >= CHUNK_RAYS else SMALL_CHUNK_RAYS
         per = max(1, chunk // k)  # whole pixels per chunk
+        step = PACKET_LANES // math.gcd(k, PACKET_LANES)
+        width = -(-per // step) * step  # the chunk's pixels padded to whole packets of rays
         parts = []
         for c, start in enumerate(range(0, m, per)):
             block = points[start : start + per]
             n = len(block)
-            block = pad_rows(block, per)  # one kernel size
+            block = pad_rows(block, width)  # one kernel size
             out = self._trace_jit(block.reshape(-1, 2), k, c, seed, positions)
             parts.append(tuple(None if a is None else a[:n] for a in out))
         cols = [np.concatenate([p[i] for p in parts]) for i in range(4)]
