@@ -124,9 +124,7 @@ def init_worker(variant: str | None, threads: int | None = None) -> str:
     """
     chosen = select_variant(variant)
     if threads:
-        import drjit as dr
-
-        dr.set_thread_count(threads)
+        set_threads(threads)
     return chosen
 
 

@@ -11,9 +11,9 @@ def pytest_configure(config):
     kernel then waits for threads the other workers descheduled (bench/dataset/core_share.py)."""
     workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
     if workers > 1 and "PYTEST_XDIST_WORKER" in os.environ:
-        import drjit as dr
+        from renderers.variant import set_threads
 
-        dr.set_thread_count(max(1, (os.cpu_count() or 1) // workers))
+        set_threads(max(1, (os.cpu_count() or 1) // workers))
 
 
 @pytest.hookimpl(trylast=True)  # after pytest's own reordering by fixture scope

@@ -70,35 +70,38 @@ def unit_state(path: Path, settings_sha256: str, expect: Mapping | None = None) 
     """:data:`DONE` (reuse it), :data:`MISSING` or :data:`DAMAGED` (redo it) for the unit whose
     record is ``path``; ``expect``: fields the record must hold (its name: a record swapped in
     from another unit is damaged). UnitSettingsError when it was made with other settings."""
-    path = Path(path)
+    return _checked(Path(path), settings_sha256, expect)[0]
+
+
+def _checked(path: Path, settings_sha256: str, expect: Mapping | None) -> tuple[str, dict | None]:
+    """:func:`unit_state` and the record it read (None unless :data:`DONE`)."""
     if not path.exists() and not path.is_symlink():
-        return MISSING
+        return MISSING, None
     record = _read(path)
     if record is None or not _intact(record) or not isinstance(record.get("files"), dict):
-        return DAMAGED
+        return DAMAGED, None
     if record.get("settings_sha256") != settings_sha256:
         raise UnitSettingsError(
             f"{path}: made with other settings (another run's); choose another --out or delete it"
         )
     if any(record.get(k) != v for k, v in (expect or {}).items()):
-        return DAMAGED
+        return DAMAGED, None
     for name, digest in record["files"].items():
         file = path.parent / str(name)
         if not file.is_file() or sha256(file) != digest:
-            return DAMAGED
-    return DONE
+            return DAMAGED, None
+    return DONE, record
 
 
 def reusable(path: Path, settings_sha256: str, expect: Mapping | None = None) -> dict | None:
-    """The record of a unit that may be reused (:func:`unit_state` says :data:`DONE`), else None:
-    missing, damaged or made with other settings, all to be redone. For units that any settings
-    may overwrite (a score's samples: their folder is named by the pipeline)."""
+    """The record of a unit that may be reused (:func:`unit_state` says :data:`DONE`), read once
+    with its checks, else None: missing, damaged or made with other settings, all to be redone.
+    For units that any settings may overwrite (a score's samples: their folder is named by the
+    pipeline)."""
     try:
-        if unit_state(path, settings_sha256, expect) != DONE:
-            return None
+        return _checked(Path(path), settings_sha256, expect)[1]
     except UnitSettingsError:
         return None
-    return _read(path)
 
 
 def other_settings(folder: Path, patterns: Iterable[str], settings_sha256: str) -> Path | None:

@@ -126,13 +126,14 @@ def _one_file_each(folder: Path, files: list[Path]) -> None:
     rows unseen (a recall made up from half the results)."""
     seen: dict[str, Path] = {}
     for file in files:
-        if file.suffix in SUFFIXES and file.is_file() and file.stem in seen:
+        if file.suffix not in SUFFIXES or not file.is_file():
+            continue  # refused as it is read (_sample_of)
+        if file.stem in seen:
             raise ResultsFileError(
                 f"{folder}: two files for sample {file.stem}: {seen[file.stem].name} and "
                 f"{file.name}; expected one <sample id>.csv or .parquet per sample"
             )
-        if file.suffix in SUFFIXES and file.is_file():
-            seen[file.stem] = file
+        seen[file.stem] = file
 
 
 def _sample_of(file: Path, facts: dict[str, SampleFacts]) -> str:
