@@ -9,6 +9,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pandas as pd
 import pytest
@@ -34,6 +35,17 @@ def fake(tmp_path_factory) -> Path:
 def copy(fake, tmp_path) -> Path:
     """A copy of the fake dataset, for a test to break."""
     return Path(shutil.copytree(fake, tmp_path / "data"))
+
+
+def bgr_grey(path: Path) -> list[np.ndarray]:
+    """Every frame as plain OpenCV gives it, decoded to BGR, converted to grey: the reference
+    the luma shortcut must equal."""
+    cap = cv2.VideoCapture(str(path), cv2.CAP_FFMPEG)
+    frames = []
+    while (read := cap.read())[0]:
+        frames.append(cv2.cvtColor(read[1], cv2.COLOR_BGR2GRAY))
+    cap.release()
+    return frames
 
 
 def test_dataset_samples_meta_camera_labels(fake) -> None:
@@ -73,7 +85,7 @@ def test_frames_are_the_videos_frames_with_their_labels(fake) -> None:
 def test_random_access_equals_the_sequential_decode(fake) -> None:
     """frame(i) in any order (backwards, across keyframes, repeated) is the i-th frame."""
     sample = open_dataset(fake)[LONG]
-    truth = list(read_video(fake / LONG / "video.mp4"))
+    truth = bgr_grey(fake / LONG / "video.mp4")
     order = [63, 0, 31, 30, 29, 62, 1, 1, 45, 5, 60, -1, *np.random.default_rng(3).permutation(64)]
     for index in order:
         frame = sample.frame(int(index))
@@ -100,7 +112,7 @@ def test_a_sample_pickles_for_worker_processes(fake) -> None:
 @pytest.mark.parametrize("seek", [True, False])
 def test_grey_video_seeks_exactly_or_decodes_forward(fake, seek) -> None:
     path = fake / LONG / "video.mp4"
-    truth = list(read_video(path))
+    truth = bgr_grey(path)
     with GreyVideo(path, seek=seek) as video:
         assert video.luma  # this OpenCV hands over the luma plane: the fast path is tested
         for index in np.random.default_rng(1).permutation(64):
@@ -115,10 +127,27 @@ def test_grey_video_falls_back_on_a_colour_video(tmp_path) -> None:
     rng = np.random.default_rng(2)
     path = tmp_path / "colour.mp4"
     write_video(path, [rng.integers(0, 256, (48, 64, 3), dtype=np.uint8) for _ in range(8)], 15.0)
-    truth = list(read_video(path))
+    truth = bgr_grey(path)
     with GreyVideo(path) as video:
         assert not video.luma
         assert all(np.array_equal(video.read(i), truth[i]) for i in (7, 0, 3, 4))
+    assert all(map(np.array_equal, read_video(path), truth))
+
+
+def test_read_video_takes_the_luma_plane_of_a_grey_video(fake, monkeypatch) -> None:
+    """Front to back (score, detect), the project's grey video is read as its luma plane and
+    equals the BGR decode converted to grey, frame for frame."""
+    from bench.common import grey_video
+
+    path = fake / LONG / "video.mp4"
+    truth = bgr_grey(path)
+    luma = []
+    monkeypatch.setattr(
+        grey_video.GreyVideo, "_grey", lambda self, f: luma.append(self.luma) or f[: self.height]
+    )
+    frames = list(read_video(path))
+    assert len(frames) == len(truth) == 64 and all(map(np.array_equal, frames, truth))
+    assert luma == [True] * 63  # frame 0 kept from the check, the rest as luma planes
 
 
 def test_the_luma_check_runs_once_per_file(fake, monkeypatch) -> None:

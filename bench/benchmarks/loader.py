@@ -5,7 +5,8 @@ Three readers of one sample's ``video.mp4``, in turn, ``repeats`` times each (me
 reported), after one untimed read that brings the file into the page cache:
 
 - ``opencv``: ``cv2.VideoCapture.read`` to the end: BGR frames, decoded and nothing else;
-- ``read_video``: :func:`bench.common.video.read_video`, the project's reader (BGR, then grey);
+- ``read_video``: :func:`bench.common.video.read_video`, the project's front-to-back reader
+  (``score``, ``detect``): the luma plane where frame 0 shows it is the grey image;
 - ``loader``: :meth:`bench.dataset.loader.Sample.frames` on a sample taken afresh from the
   dataset: ``sample.json``, ``camera.json`` and ``labels.parquet`` read, then per frame the
   grey image and its label rows. Its first run also checks, once per file and process, that
@@ -75,7 +76,7 @@ def bench_loader(
         f"{repeats} runs each, in turn, {os.cpu_count()} cores"
     )
     print(f"  OpenCV VideoCapture.read (BGR, decode only): {fps['opencv']:6.1f} frames/s")
-    print(f"  read_video (BGR, then grey):                 {fps['read_video']:6.1f} frames/s")
+    print(f"  read_video (grey, front to back):            {fps['read_video']:6.1f} frames/s")
     print(f"  loader frames() (grey image + label rows):    {fps['loader']:6.1f} frames/s")
     first_fps = n / seconds["loader"][0]
     print(f"  loader, its first run (checks the decoder):   {first_fps:6.1f} frames/s")

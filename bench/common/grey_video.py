@@ -30,6 +30,7 @@ either way.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from pathlib import Path
 
 import cv2
@@ -69,6 +70,21 @@ class GreyVideo:
     # --- reading
     def read(self, index: int) -> np.ndarray:
         """Frame ``index`` (0-based) as a grey (H, W) uint8 image."""
+        frame = self._at(index)
+        if frame is None:
+            raise self._missing(index)
+        return frame
+
+    def frames(self) -> Iterator[np.ndarray]:
+        """Every frame from the first, front to back, until one does not decode (whether that
+        is the end :attr:`frame_count` declares is the caller's check)."""
+        index = 0
+        while (frame := self._at(index)) is not None:
+            yield frame
+            index += 1
+
+    def _at(self, index: int) -> np.ndarray | None:
+        """Frame ``index``, or None if it (or a frame before it) does not decode."""
         if self._cap is None:
             raise ValueError(f"{self.path}: the video is closed")
         index = int(index)
@@ -81,11 +97,11 @@ class GreyVideo:
             self._move_to(index)
         while self.position < index:
             if not self._cap.grab():
-                raise self._missing(self.position)
+                return None
             self.position += 1
         ok, frame = self._read_raw()
         if not ok:
-            raise self._missing(index)
+            return None
         self.position = index + 1
         return self._grey(frame)
 

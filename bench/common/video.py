@@ -198,26 +198,23 @@ def _ffmpeg_command(out: Path, shape: tuple[int, ...], fps: float, qp: int) -> l
 
 
 def read_video(path: Path) -> Iterator[np.ndarray]:
-    """Yield the frames of a video as grey uint8 (H, W) images.
+    """Yield the frames of a video as grey uint8 (H, W) images: each frame decoded to BGR and
+    converted to grey, or, where frame 0 shows that to be the same image, its luma plane as
+    decoded (the project's videos: half the decoding time; :mod:`bench.common.grey_video`).
 
     Raises ValueError when the file cannot be opened, is over a bound or changes its frame
     size (:func:`check_video`, before the first frame is decoded), or, after the last frame,
     when fewer frames decoded than the container declares (a truncated or damaged file), so
     that a consumer never silently gets part of a video.
     """
-    cap = open_capture(path)
-    declared = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
+    from bench.common.grey_video import GreyVideo  # which builds on this module
+
     count = 0
-    try:
-        check_stream(cap, path)
-        while True:
-            ok, frame = cap.read()
-            if not ok:
-                break
+    with GreyVideo(path, seek=False) as video:
+        for frame in video.frames():
             count += 1
-            yield cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY)  # exact for grey: B = G = R
-    finally:
-        cap.release()
+            yield frame
+        declared = video.frame_count
     if count == 0 or count < declared:
         raise ValueError(f"{path}: {count} frames decode of {declared} declared (truncated?)")
 
