@@ -72,7 +72,7 @@ class GreyVideo:
         """Frame ``index`` (0-based) as a grey (H, W) uint8 image."""
         frame = self._at(index)
         if frame is None:
-            raise self._missing(index)
+            raise self._missing(self.position)  # the first frame that did not decode
         return frame
 
     def frames(self) -> Iterator[np.ndarray]:
@@ -84,7 +84,8 @@ class GreyVideo:
             index += 1
 
     def _at(self, index: int) -> np.ndarray | None:
-        """Frame ``index``, or None if it (or a frame before it) does not decode."""
+        """Frame ``index``, or None if it (or a frame before it) does not decode: then
+        :attr:`position` is the first frame that did not."""
         if self._cap is None:
             raise ValueError(f"{self.path}: the video is closed")
         index = int(index)
