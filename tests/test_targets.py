@@ -181,3 +181,26 @@ def test_quick_run_prints_a_row_per_target(variant, pair_config, tmp_path, capsy
     measured = {o.target.key for o in outcomes if o.figure is not None}
     assert {"1a", "1b", "1c"} <= measured
     assert all(o.figure > 0 for o in outcomes if o.figure is not None)
+
+
+@pytest.mark.skipif(shutil.which("make") is None, reason="needs make")
+def test_make_bench_installs_cycles_before_the_targets_and_make_test_does_not(tmp_path):
+    """Targets 2a and 2b need bpy: `make bench` installs it (no pip extra can: it pins numpy<2)
+    before it measures; the suite's own set-up stays without it."""
+    import subprocess
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+
+    def dry_run(goal: str) -> list[str]:
+        done = subprocess.run(
+            ["make", "-n", goal, f"VENV={tmp_path / 'venv'}"],
+            cwd=root, capture_output=True, text=True, check=True,
+        )  # fmt: skip
+        return done.stdout.splitlines()
+
+    bench = dry_run("bench")
+    install = [i for i, line in enumerate(bench) if "pip install --quiet --no-deps bpy==" in line]
+    targets = [i for i, line in enumerate(bench) if "whiskerbench bench targets" in line]
+    assert len(install) == 1 and len(targets) == 1 and install[0] < targets[0], bench
+    assert not any("bpy" in line for line in dry_run("test") + dry_run("test-fast"))

@@ -40,7 +40,7 @@ from scenes.materials import CARRIER_ALBEDO
 #: Camera frame -> Blender frame (a proper rotation: half a turn about x).
 CAM_TO_BLENDER = np.diag([1.0, -1.0, -1.0])
 #: bpy 5.0.1 pins numpy<2, which opencv 5 rules out; it renders with numpy 2 (pyproject.toml).
-INSTALL_HINT = "pip install --no-deps bpy==5.0.1"
+INSTALL_HINT = "make cycles, or pip install --no-deps bpy==5.0.1"
 
 
 def import_bpy() -> ModuleType | None:

@@ -48,7 +48,7 @@ def add_bench_render_parser(bench_sub) -> None:
     """The ``render`` parser under ``bench``."""
     p = bench_sub.add_parser(
         "render",
-        help="the project's renderer against Blender Cycles (pip install --no-deps bpy==5.0.1)",
+        help="the project's renderer against Blender Cycles (make cycles installs bpy)",
     )
     p.add_argument(
         "--scene",
