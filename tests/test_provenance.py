@@ -15,8 +15,8 @@ from pipeline.presets import PRESETS
 from scenes.profile import load_profile
 
 FIELDS = {
-    "kind", "schema", "config", "seed", "versions", "variant", "inputs", "outputs", "started",
-    "finished", "wall_s",
+    "kind", "schema", "config", "seed", "versions", "machine", "variant", "inputs", "outputs",
+    "started", "finished", "wall_s",
 }  # fmt: skip
 BRANCH = "soft-intermediate-100-outdoor-lab"
 
@@ -32,6 +32,7 @@ def check_manifest(folder: Path, kind: str) -> dict:
     assert manifest["kind"] == kind and manifest["schema"] == 1
     assert manifest["finished"] >= manifest["started"]
     assert manifest["versions"]["numpy"] and manifest["versions"]["python"]
+    assert set(manifest["machine"]) == {"cpu", "cores", "simd"} and manifest["machine"]["cpu"]
     for path, digest in manifest["inputs"].items():
         assert _digest(path) == digest, path
     for name, digest in manifest["outputs"].items():
@@ -124,3 +125,51 @@ def test_bench_pipeline_manifest(variant, tmp_path) -> None:
     assert leads["recall"]["holds_across_band"] is True  # one pipeline leads everywhere
     assert leads["recall"]["band_leaders"] == f"{low:g}: paper; {high:g}: paper"
     assert leads["fps"]["holds_across_band"] is None  # speed is not judged
+
+
+X86_CPUINFO = """processor\t: 0
+vendor_id\t: GenuineIntel
+model name\t: Intel(R) Xeon(R) Gold 6338 CPU @ 2.00GHz
+flags\t\t: fpu vme sse4_1 sse4_2 avx avx2 fma avx512f avx512bw
+"""
+ARM_CPUINFO = """processor\t: 0
+BogoMIPS\t: 50.00
+Features\t: fp asimd evtstrm aes crc32
+CPU implementer\t: 0x41
+"""
+
+
+@pytest.mark.parametrize(
+    ("text", "expected"),
+    [
+        (X86_CPUINFO, ("Intel(R) Xeon(R) Gold 6338 CPU @ 2.00GHz", "avx512f")),
+        (
+            X86_CPUINFO.replace(" avx512f avx512bw", ""),
+            ("Intel(R) Xeon(R) Gold 6338 CPU @ 2.00GHz", "avx2"),
+        ),
+        (ARM_CPUINFO, (None, "asimd")),
+        ("", (None, None)),
+        ("flags\t: fpu vme\n", (None, None)),
+    ],
+    ids=["avx512", "avx2", "arm", "empty", "no-simd"],
+)
+def test_cpu_summary_names_the_model_and_the_widest_simd_level(text, expected):
+    """The machine record that tells why two machines' files differ in their last bits: NumPy and
+    Dr.Jit pick their kernels (and Dr.Jit its 16 or 8 lanes) by these flags."""
+    from bench.common.manifest import cpu_summary
+
+    assert cpu_summary(text.splitlines()) == expected
+
+
+def test_the_machine_record_is_this_machines():
+    import os
+
+    from bench.common.manifest import machine
+
+    record = machine()
+    assert record["cores"] == os.cpu_count() and isinstance(record["cpu"], str) and record["cpu"]
+    flags = Path("/proc/cpuinfo").read_text() if Path("/proc/cpuinfo").exists() else ""
+    if " avx512f" in flags:
+        assert record["simd"] == "avx512f"
+    elif " avx2" in flags:
+        assert record["simd"] == "avx2"

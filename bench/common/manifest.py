@@ -1,17 +1,20 @@
 """Provenance: one ``manifest.json`` per output folder, written the same way by every command.
 
 A manifest says what made the folder (``kind``: the command), with which config, seed, package
-versions and Mitsuba variant, from which input files (path -> SHA-256), what it wrote, and when
-and for how long. Its ``kind`` is also the folder's claim: a command refuses a folder that holds
-another command's manifest (:func:`bench.common.run_folder.claim`), before any work and before
-writing anything, so two commands pointed at one folder never overwrite each other's results.
+versions, machine (:func:`machine`) and Mitsuba variant, from which input files (path ->
+SHA-256), what it wrote, and when and for how long. Its ``kind`` is also the folder's claim: a
+command refuses a folder that holds another command's manifest
+(:func:`bench.common.run_folder.claim`), before any work and before writing anything, so two
+commands pointed at one folder never overwrite each other's results.
 """
 
 from __future__ import annotations
 
 import functools
 import hashlib
+import itertools
 import json
+import os
 import platform
 import sys
 import time
@@ -28,6 +31,11 @@ from scenes.input_limits import RECORD_BYTES, RECORD_DEPTH
 
 SCHEMA = 1
 MANIFEST = "manifest.json"
+#: SIMD levels a manifest names, widest first (x86 and Arm flag names of /proc/cpuinfo).
+SIMD_LEVELS = ("avx512f", "avx2", "avx", "sse4_2", "sve", "asimd")
+CPUINFO_LINES = (
+    200  # /proc/cpuinfo's first processor fits; a bound on a file a user can't hand over
+)
 #: This project's distribution name (pyproject.toml's ``[project] name``).
 DISTRIBUTION = "whiskerbench"
 PACKAGES = (
@@ -84,6 +92,48 @@ def sha256(path: Path) -> str:
 def json_sha256(obj: Any) -> str:
     """SHA-256 of a JSON value's canonical text: equal configs give equal hashes."""
     return hashlib.sha256(json.dumps(obj, sort_keys=True, default=str).encode()).hexdigest()
+
+
+def cpu_summary(cpuinfo: Iterable[str]) -> tuple[str | None, str | None]:
+    """(model, widest SIMD level of :data:`SIMD_LEVELS`) from the lines of ``/proc/cpuinfo``'s
+    first processor; None for what it does not say."""
+    model = simd = None
+    for line in cpuinfo:
+        key, sep, value = line.partition(":")
+        key = key.strip().lower()
+        if not sep:
+            continue
+        if key in ("model name", "hardware") and model is None:
+            model = value.strip() or None
+        elif key in ("flags", "features"):
+            flags = set(value.split())
+            simd = next((level for level in SIMD_LEVELS if level in flags), None)
+    return model, simd
+
+
+@functools.cache
+def machine() -> dict[str, Any]:
+    """The CPU a run used: ``cpu`` (model), ``cores`` (logical) and ``simd`` (its widest level).
+
+    NumPy's kernels and Dr.Jit's LLVM kernels (16 lanes with AVX-512F, 8 with AVX2) follow the
+    SIMD level, and with it the last bits of labels, renders and tables: a byte comparison
+    between runs holds on one kind of machine (docs/datasets.md, "Bytes across machines").
+    """
+    lines: list[str] = []
+    try:
+        with open("/proc/cpuinfo", errors="replace") as f:
+            for line in itertools.islice(f, CPUINFO_LINES):
+                if not line.strip():
+                    break  # the first processor's block is enough
+                lines.append(line)
+    except OSError:  # not Linux, or no /proc
+        pass
+    model, simd = cpu_summary(lines)
+    return {
+        "cpu": model or platform.processor() or platform.machine(),
+        "cores": os.cpu_count(),
+        "simd": simd,
+    }
 
 
 def current_variant() -> str | None:
@@ -161,6 +211,7 @@ def build_manifest(
         "config": config,
         "seed": seed,
         "versions": package_versions(),
+        "machine": machine(),
         "variant": variant if variant is not None else current_variant(),
         "inputs": dict(inputs or {}),
         "outputs": dict(outputs or {}),

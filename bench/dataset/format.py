@@ -16,7 +16,7 @@ from collections.abc import Mapping
 from pathlib import Path
 
 #: The version of the format :func:`bench.dataset.generate.run_dataset` writes.
-FORMAT_VERSION = "1.1"
+FORMAT_VERSION = "1.2"
 #: The version of a dataset whose manifest has no ``format_version`` (made before the field).
 UNVERSIONED = "1.0"
 _VERSION = re.compile(r"(\d{1,6})\.(\d{1,6})")

@@ -32,8 +32,6 @@ report.
 
 from __future__ import annotations
 
-import os
-import platform
 import shutil
 import time
 from pathlib import Path
@@ -47,6 +45,7 @@ from bench.common.manifest import (
     RunClock,
     build_manifest,
     hash_files,
+    machine,
     write_manifest,
 )
 from bench.common.run_folder import claim, open_folder
@@ -235,8 +234,7 @@ def run_compare(
             "dataset": str(dataset),
             "samples": int(summary["samples"].iloc[0]),
             "variant": chosen,
-            "cpu_count": os.cpu_count(),
-            "machine": platform.processor() or platform.machine(),
+            "cpu_count": machine()["cores"],
             "opencv": cv2.__version__,
             "wall_s": time.perf_counter() - t_start,
             "speed": {
@@ -281,8 +279,6 @@ def run_compare(
             variant=chosen,
             inputs=verified.inputs(),
             outputs=hash_files(written, out_dir),
-            cpu_count=meta["cpu_count"],
-            machine=meta["machine"],
             executor=effective_executor(executor, workers, scheduler),
             workers=workers,
             scheduler=scheduler,
