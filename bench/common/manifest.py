@@ -113,7 +113,8 @@ def cpu_summary(cpuinfo: Iterable[str]) -> tuple[str | None, str | None]:
 
 @functools.cache
 def machine() -> dict[str, Any]:
-    """The CPU a run used: ``cpu`` (model), ``cores`` (logical) and ``simd`` (its widest level).
+    """The CPU of the process writing the manifest: ``cpu`` (model), ``cores`` (logical) and
+    ``simd`` (its widest level). A pool's workers share it; a remote Dask cluster's may not.
 
     NumPy's kernels and Dr.Jit's LLVM kernels (16 lanes with AVX-512F, 8 with AVX2) follow the
     SIMD level, and with it the last bits of labels, renders and tables: a byte comparison
@@ -211,7 +212,7 @@ def build_manifest(
         "config": config,
         "seed": seed,
         "versions": package_versions(),
-        "machine": machine(),
+        "machine": dict(machine()),  # a copy: the cached record stays as read
         "variant": variant if variant is not None else current_variant(),
         "inputs": dict(inputs or {}),
         "outputs": dict(outputs or {}),
