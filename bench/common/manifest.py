@@ -33,9 +33,9 @@ SCHEMA = 1
 MANIFEST = "manifest.json"
 #: SIMD levels a manifest names, widest first (x86 and Arm flag names of /proc/cpuinfo).
 SIMD_LEVELS = ("avx512f", "avx2", "avx", "sse4_2", "sve", "asimd")
-CPUINFO_LINES = (
-    200  # /proc/cpuinfo's first processor fits; a bound on a file a user can't hand over
-)
+#: Lines read of /proc/cpuinfo at most: the first processor's block fits, and a machine with
+#: hundreds of cores is not read whole.
+CPUINFO_LINES = 200
 #: This project's distribution name (pyproject.toml's ``[project] name``).
 DISTRIBUTION = "whiskerbench"
 PACKAGES = (
@@ -113,8 +113,9 @@ def cpu_summary(cpuinfo: Iterable[str]) -> tuple[str | None, str | None]:
 
 @functools.cache
 def machine() -> dict[str, Any]:
-    """The CPU of the process writing the manifest: ``cpu`` (model), ``cores`` (logical) and
-    ``simd`` (its widest level). A pool's workers share it; a remote Dask cluster's may not.
+    """The CPU of this process (a manifest's writer, a sample's worker): ``cpu`` (model),
+    ``cores`` (logical) and ``simd`` (its widest level). A pool's workers share the machine; a
+    remote Dask cluster's may not.
 
     NumPy's kernels and Dr.Jit's LLVM kernels (16 lanes with AVX-512F, 8 with AVX2) follow the
     SIMD level, and with it the last bits of labels, renders and tables: a byte comparison
