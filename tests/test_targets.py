@@ -175,6 +175,9 @@ def test_quick_run_prints_a_row_per_target(variant, pair_config, tmp_path, capsy
     outcomes = t.bench_targets(one, INDOOR, tmp_path / "b", quick=True)
     printed = capsys.readouterr().out
     assert HEADER in printed and t.table(outcomes) in printed
+    from bench.common.manifest import machine
+
+    assert f"({machine()['cpu']}, " in printed.splitlines()[0]  # the figures' machine, named
     for o in outcomes:
         assert (o.figure is None) == (o.met is None) == bool(o.why.startswith("not "))
         assert o.met is None or o.met == t.judge(o.figure, o.target.threshold, o.target.above)

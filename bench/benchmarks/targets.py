@@ -21,7 +21,7 @@ from pathlib import Path
 
 from bench.benchmarks.scale import default_dataset_frames
 from bench.common.atomic import write_bytes
-from bench.common.manifest import RunClock, build_manifest, hash_files, write_manifest
+from bench.common.manifest import RunClock, build_manifest, hash_files, machine, write_manifest
 from bench.common.run_folder import claim_out, open_folder
 from bench.dataset.config import DatasetConfig
 from bench.dataset.generate import run_dataset
@@ -328,9 +328,11 @@ def bench_targets(
     clock = RunClock()
     claim_out(out_dir, "bench-targets")
     load = [os.getloadavg()[0]]  # a shared machine's load: what the figures were measured under
+    cpu = machine()
+    simd = cpu["simd"] or "no SIMD level named"
     print(
-        f"targets of issue 25 on {os.cpu_count()} cores, load average {load[0]:.1f}"
-        + (" (--quick)" if quick else "")
+        f"targets of issue 25 on {cpu['cores']} cores ({cpu['cpu']}, {simd}), load average "
+        f"{load[0]:.1f}" + (" (--quick)" if quick else "")
     )
     outcomes = measure(quick_dataset, indoor, quick, time_tests)
     load.append(os.getloadavg()[0])
