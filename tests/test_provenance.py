@@ -173,3 +173,18 @@ def test_the_machine_record_is_this_machines():
         assert record["simd"] == "avx512f"
     elif " avx2" in flags:
         assert record["simd"] == "avx2"
+
+
+def test_every_unit_record_names_the_machine_that_made_it(tmp_path):
+    """A study cell, a dataset sample, a score unit or a ladder rung made on another machine (a
+    resumed run, a remote Dask worker) says so; the field is bookkeeping, not the unit's own
+    result, and does not decide whether the unit is reused."""
+    from bench.common.manifest import machine
+    from bench.common.units import DONE, payload, unit_state, write_unit
+
+    path = tmp_path / "unit.json"
+    record = {"unit": "a", "settings_sha256": "s", "files": {}, "result": 1}
+    written = write_unit(path, record)
+    assert written["machine"] == machine() and json.loads(path.read_text()) == written
+    assert payload(written) == {"result": 1}
+    assert unit_state(path, "s", {"unit": "a"}) == DONE

@@ -3,10 +3,13 @@ it is reused.
 
 A unit's record is a JSON file written after (or atomically with) the unit's data files. It holds
 the run's settings hash (``settings_sha256``), the SHA-256 of each data file (``files``, paths
-relative to the record's folder) and its own hash (``record_sha256``: of the record without it).
-So the settings stay with every unit even when the folder's ``manifest.json`` is lost, and a
-unit is reused only when its record is intact, made with this run's settings, and every file it
-lists hashes as recorded: a swapped, emptied, truncated or grown file is redone, not trusted.
+relative to the record's folder), the machine of the process that made the unit (``machine``,
+:func:`bench.common.manifest.machine`: a run resumed elsewhere, or a remote Dask worker, makes
+its units on other CPUs, whose last bits differ) and its own hash (``record_sha256``: of the
+record without it). So the settings stay with every unit even when the folder's
+``manifest.json`` is lost, and a unit is reused only when its record is intact, made with this
+run's settings, and every file it lists hashes as recorded: a swapped, emptied, truncated or
+grown file is redone, not trusted.
 """
 
 from __future__ import annotations
@@ -16,7 +19,7 @@ from collections.abc import Iterable, Mapping
 from pathlib import Path
 
 from bench.common.atomic import write_json
-from bench.common.manifest import json_sha256, sha256
+from bench.common.manifest import json_sha256, machine, sha256
 from scenes.bounded_read import read_json
 from scenes.input_limits import RECORD_BYTES, RECORD_DEPTH
 
@@ -24,7 +27,7 @@ from scenes.input_limits import RECORD_BYTES, RECORD_DEPTH
 RECORD_HASH = "record_sha256"
 #: The keys that make a JSON file a unit record (beside the unit's own fields); ``unit``, where
 #: a record has it, names the unit (so a record swapped in from another unit shows).
-UNIT_KEYS = ("unit", "settings_sha256", "files", RECORD_HASH)
+UNIT_KEYS = ("unit", "settings_sha256", "files", "machine", RECORD_HASH)
 
 DONE, MISSING, DAMAGED = "done", "missing", "damaged"
 
@@ -42,8 +45,9 @@ def seal(record: Mapping) -> dict:
 
 
 def write_unit(path: Path, record: Mapping) -> dict:
-    """Write a unit's record (it has ``settings_sha256`` and ``files``) sealed; return it."""
-    sealed = seal(record)
+    """Write a unit's record (it has ``settings_sha256`` and ``files``) sealed, with this
+    process's ``machine``; return it."""
+    sealed = seal({**record, "machine": dict(machine())})
     write_json(path, sealed)
     return sealed
 

@@ -26,7 +26,7 @@ import numpy as np
 import pandas as pd
 
 from bench.common.atomic import atomic_path, write_json
-from bench.common.manifest import machine, sha256
+from bench.common.manifest import sha256
 from bench.common.units import unit_state, write_unit
 from bench.dataset.config import SAMPLE_FILES, DatasetConfig, SampleSpec
 from bench.dataset.core_share import CHECK_EVERY_FRAMES, CoreShare
@@ -241,7 +241,6 @@ def run_sample(
         "array": config.array.to_json(),
         "family": check_dictionary(config.array.dictionary),  # the markers' (array.dictionary)
         "timing_s": dataclasses.asdict(timing),
-        "machine": dict(machine()),  # this worker's: a resumed dataset's samples may differ
         "settings_sha256": config.settings_hash(),
         "files": {name: sha256(folder / name) for name in SAMPLE_FILES},
     }
