@@ -390,7 +390,8 @@ class FrameRecorder:
         self.twin = TwinRecorder(profile, renderer.region, renderer.band, self.exposure, noise_seed)
         self.render_s = 0.0
         self.frames_reused = 0  # frames that took the previous frame's optical image
-        self._last: tuple[int, np.ndarray] | None = None  # (frame, its optical image)
+        self._last_frame: int | None = None  # the frame render_once was given before
+        self._irradiance: np.ndarray | None = None  # the optical image record used last
 
     @property
     def optics_s(self) -> float:
@@ -421,14 +422,24 @@ class FrameRecorder:
         )
 
     def frame(self, f: int) -> np.ndarray:
-        """The camera's 8-bit grey frame ``f`` (H, W): black outside the rendered region.
+        """The camera's 8-bit grey frame ``f`` (H, W): black outside the rendered region."""
+        return self.record(self.render_once(f))
 
-        A frame still as the one recorded before it reuses that frame's optical image (render
-        and optics are deterministic) and draws only its own sensor noise."""
-        if self._last is not None and self.still_as(f, self._last[0]):
+    def render_once(self, f: int) -> np.ndarray | None:
+        """Frame ``f``'s radiance (:meth:`radiance`), or None where ``f`` is still as the frame
+        given before it: render and optics are deterministic, so :meth:`record` reuses that
+        frame's optical image and draws only the new frame's sensor noise."""
+        still = self._last_frame is not None and self.still_as(f, self._last_frame)
+        self._last_frame = f
+        if still:
             self.frames_reused += 1
-            irradiance = self._last[1]
-        else:
-            irradiance = self.twin.optics(self.radiance(f))
-        self._last = (f, irradiance)
-        return self.twin.expose(irradiance)
+            return None
+        return self.radiance(f)
+
+    def record(self, radiance: np.ndarray | None) -> np.ndarray:
+        """The 8-bit frame of :meth:`render_once`'s result, called in the frames' order (the
+        sensor's noise streams go on from frame to frame): another thread may record frame f
+        while :meth:`render_once` renders f + 1."""
+        if radiance is not None:
+            self._irradiance = self.twin.optics(radiance)
+        return self.twin.expose(self._irradiance)

@@ -52,6 +52,7 @@ class MarkerRenderer:
         self.spp = spp
         self.integrator, self.path_depth = integrator, path_depth
         self._loaded: dict[str, tuple[FisheyeRenderer, CanopyScene | None]] = {}
+        self._sky: dict[str, np.ndarray] = {}  # the open sky's full frame per lighting
 
     def fisheye(self, lighting: str) -> FisheyeRenderer:
         """The renderer of the marker's scene under that lighting preset (loaded on first use)."""
@@ -92,6 +93,22 @@ class MarkerRenderer:
         renderer = self.fisheye(lighting)
         renderer.scene.set_pose(T_cam_marker, size_mm)
         return renderer.render(window, seed=seed)
+
+    def render_frame(
+        self, lighting: str, T_cam_marker: np.ndarray, size_mm: float, grid_px: int, seed: int
+    ) -> np.ndarray:
+        """Full-frame linear RGB radiance (H, W, 3): the crop around the marker (:meth:`crop`)
+        traced by :meth:`render`, the open sky elsewhere (:mod:`renderers.sky_frame`, computed
+        on the lighting's first frame). Lightings without a leaf canopy."""
+        from renderers.sky_frame import sky_background
+
+        if lighting not in self._sky:
+            self._sky[lighting] = sky_background(self.lens, get_lighting(lighting), self.spp)
+        window = self.crop(T_cam_marker, size_mm, grid_px)
+        crop = self.render(lighting, T_cam_marker, size_mm, window, seed).radiance()
+        frame = self._sky[lighting].copy()
+        frame[window.y0 : window.y0 + window.height, window.x0 : window.x0 + window.width] = crop
+        return frame
 
     def radiance(
         self, lighting: str, rendered: RenderedWindow, n_images: int, rng: np.random.Generator

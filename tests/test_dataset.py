@@ -88,7 +88,10 @@ def test_sample_files_and_manifest(dataset) -> None:
     assert manifest["foliage_groups"] == {record["foliage_group"]: [sample.sample_id]}
     stages = manifest["stage_s"]
     assert stages["render_s"] > 0 and stages["optics_s"] > 0 and stages["sensor_s"] > 0
-    assert sum(stages.values()) == pytest.approx(record["timing_s"]["total_s"])
+    # the twin (optics, sensor) runs beside the render: the rest adds up to the total
+    serial = ("simulate_s", "render_s", "encode_s", "other_s")
+    assert sum(stages[k] for k in serial) == pytest.approx(record["timing_s"]["total_s"])
+    assert min(stages.values()) >= 0
 
 
 @pytest.mark.slow

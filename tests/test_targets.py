@@ -119,6 +119,25 @@ def test_render_ratio_is_the_smaller_one_and_only_at_equal_detection(monkeypatch
     assert "Cycles 12.00 s" in outcome.baseline
 
 
+@pytest.mark.parametrize("within", [True, False])
+def test_the_marker_ratio_counts_only_a_frame_within_the_traced_frames_seed_spread(
+    monkeypatch, within
+):
+    import bench.benchmarks.cycles_scene as cycles
+    import bench.benchmarks.render as render
+
+    figures = _render_figures(40.0, 30.0, True)
+    figures.update(traced={"wall_s": [2.0, 1.5]}, within_seed_spread=within)
+    monkeypatch.setattr(cycles, "import_bpy", lambda: object())
+    monkeypatch.setattr(render, "bench_render", lambda *a, **k: figures)
+    outcome = t.render_ratio("marker", "2b")
+    assert "every pixel traced 1.50 s" in outcome.baseline
+    if within:
+        assert outcome.figure == 30.0 and outcome.met
+    else:
+        assert outcome.figure is None and "strays from the traced one" in outcome.why
+
+
 def test_gpu_row_measures_on_a_device(fake_rates, monkeypatch):
     rates, calls = fake_rates
     rates["gpu"] = 400.0

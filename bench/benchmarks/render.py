@@ -4,7 +4,9 @@ Two scenes, each rendered by both at the same resolution, samples per pixel, dir
 and thread count, in the ``sun`` preset through the prototype lens: ``marker``, the study's marker
 and pose (the full 2592 x 1944 frame, or a crop around the marker), rendered by the project as the
 study renders it (:class:`~renderers.marker_renderer.MarkerRenderer`: exact sky term, sun per
-sample, adaptive anti-aliasing); ``array``, the whisker array in foliage
+sample, adaptive anti-aliasing; a full frame is the marker's crop traced and the open sky
+elsewhere, :mod:`renderers.sky_frame`, checked against the frame with every pixel traced and
+that frame's own seed spread); ``array``, the whisker array in foliage
 (:mod:`bench.benchmarks.render_array`), rendered as the dataset renders it. Cycles renders the
 same plain data (:mod:`bench.benchmarks.cycles_scene`). Each
 renders twice: the first render includes loading the scene and compiling kernels, the second is
@@ -48,6 +50,10 @@ SCENES = ("marker", "array")
 SIZE_MM, ALPHA_DEG, PHI_DEG, LIGHTING, CAMERA = 13.2, 30.0, 20.0, "sun", "prototype"
 #: The issue's target: the project at least this many times faster than Cycles.
 TARGET_RATIO = 10.0
+#: The crop + sky frame is faithful when it differs from the traced frame by at most this many
+#: times what two traced frames of other seeds differ by (share of pixels differing outside the
+#: crop, mean |difference| inside it).
+SPREAD_FACTOR = 1.5
 
 
 def camera_image(radiance: np.ndarray, exposure: float) -> np.ndarray:
@@ -75,6 +81,8 @@ class _Scene:
     describe: Callable[[dict], str]  # an outcome in words
     exposure: float
     what: str
+    traced: Callable[[int], tuple] | None = None  # every pixel traced, for a full frame
+    crop: Window | None = None  # the window the fast full frame traces
 
 
 def _marker_scene(spp: int, crop: bool) -> _Scene:
@@ -84,10 +92,17 @@ def _marker_scene(spp: int, crop: bool) -> _Scene:
     T = study_pose(ALPHA_DEG, PHI_DEG, config.distance_mm)
     truth = MarkerTruth.of(lens, config.marker_id, SIZE_MM, T)
     renderer = MarkerRenderer(lens, config.dictionary, config.marker_id, spp)
-    window = renderer.crop(T, SIZE_MM, config.camera.crop_grid_px) if crop else Window.full(lens)
+    grid = config.camera.crop_grid_px
+    marker_window = renderer.crop(T, SIZE_MM, grid)
+    window = marker_window if crop else Window.full(lens)
+
+    def traced(seed: int):
+        return renderer.render(LIGHTING, T, SIZE_MM, window, seed).radiance(), None, None
 
     def project(seed: int):
-        return renderer.render(LIGHTING, T, SIZE_MM, window, seed).radiance(), None, None
+        if crop:
+            return traced(seed)
+        return renderer.render_frame(LIGHTING, T, SIZE_MM, grid, seed), None, None
 
     def describe(found: dict) -> str:
         if found["detected"]:
@@ -105,6 +120,8 @@ def _marker_scene(spp: int, crop: bool) -> _Scene:
         lighting.exposure,
         f"one marker ({SIZE_MM:g} mm, alpha {ALPHA_DEG:g}, phi {PHI_DEG:g} deg, "
         f"{config.distance_mm:g} mm)",
+        traced=None if crop else traced,
+        crop=None if crop else marker_window,
     )
 
 
@@ -135,15 +152,16 @@ def _array_scene(spp: int) -> _Scene:
     )
 
 
-def _time(render) -> tuple[np.ndarray, list[float], list[float]]:
-    """(the second render's radiance, [wall s] and [CPU s] of both renders)."""
-    walls, cpus = [], []
+def _time(render) -> tuple[list[np.ndarray], list[float], list[float]]:
+    """([radiance], [wall s] and [CPU s] of both renders, seeds 1 and 2)."""
+    images, walls, cpus = [], [], []
     for seed in (1, 2):
         t0, c0 = time.perf_counter(), time.process_time()
         radiance, wall, cpu = render(seed)
         walls.append(wall if wall is not None else time.perf_counter() - t0)
         cpus.append(cpu if cpu is not None else time.process_time() - c0)
-    return radiance, walls, cpus
+        images.append(radiance)
+    return images, walls, cpus
 
 
 def bench_render(
@@ -180,6 +198,10 @@ def bench_render(
         f"{os.cpu_count()} cores)"
     )
     rows = {"project": _run("project", chosen, bench.project, bench)}
+    spread = {}
+    if bench.traced is not None:
+        rows["traced"] = _run("project, every pixel traced", chosen, bench.traced, bench)
+        spread = _against_traced(rows, bench.crop)
     bpy = None
     if use_cycles:
         from bench.benchmarks.cycles_scene import INSTALL_HINT, import_bpy
@@ -194,7 +216,7 @@ def bench_render(
         cycles = CyclesScene(bpy, bench.lens, parts, get_lighting(LIGHTING), spp, threads)
         name = f"Cycles {bpy.app.version_string}"
         rows["cycles"] = _run(name, "CPU", lambda _: cycles.render(window), bench)
-    figures = _verdict(rows)
+    figures = _verdict(rows, spread)
     figures.update(
         scene=scene,
         spp=spp,
@@ -210,22 +232,57 @@ def bench_render(
 
 def _run(name: str, device: str, render, bench: _Scene) -> dict:
     """Time one renderer's two renders, detect on the second; print one line."""
-    radiance, walls, cpus = _time(render)
-    image = camera_image(radiance, bench.exposure)
+    radiances, walls, cpus = _time(render)
+    image = camera_image(radiances[1], bench.exposure)
     found = bench.outcome(image)
     print(
         f"  {name} ({device}): first render {walls[0]:.2f} s wall / {cpus[0]:.2f} s CPU, "
         f"then {walls[1]:.2f} s wall / {cpus[1]:.2f} s CPU; {bench.describe(found)}"
     )
-    return {"name": name, "device": device, "wall_s": walls, "cpu_s": cpus, "image": image, **found}
+    first = camera_image(radiances[0], bench.exposure)
+    return {
+        "name": name, "device": device, "wall_s": walls, "cpu_s": cpus, "image": image,
+        "first_image": first, **found,
+    }  # fmt: skip
 
 
-def _verdict(rows: dict) -> dict:
-    """Ratios Cycles / project (second renders), detection agreement, the target met or missed."""
+def _against_traced(rows: dict, crop: Window) -> dict:
+    """The fast full frame (crop + sky) against the traced one, beside the traced frame's own
+    spread over seeds 1 and 2: the share of pixels differing outside the crop, the mean 8-bit
+    |difference| inside it; ``within_seed_spread`` when neither exceeds SPREAD_FACTOR x."""
+    inside = np.zeros(rows["traced"]["image"].shape, bool)
+    inside[crop.y0 : crop.y0 + crop.height, crop.x0 : crop.x0 + crop.width] = True
+
+    def apart(a: np.ndarray, b: np.ndarray) -> dict:
+        d = np.abs(a.astype(np.int16) - b)
+        return {
+            "outside_differ": float((d[~inside] > 0).mean()),
+            "inside_mean": float(d[inside].mean()),
+        }
+
+    traced = rows["traced"]["image"]
+    fast, spread = (
+        apart(rows["project"]["image"], traced),
+        apart(rows["traced"]["first_image"], traced),
+    )
+    within = all(fast[k] <= SPREAD_FACTOR * spread[k] for k in fast)
+    print(
+        f"  crop + sky against every pixel traced: {fast['outside_differ']:.3%} of pixels outside "
+        f"the crop differ, mean |d| {fast['inside_mean']:.3f} grey inside; two traced seeds: "
+        f"{spread['outside_differ']:.3%}, {spread['inside_mean']:.3f}: "
+        + ("within the seed spread" if within else f"OUTSIDE {SPREAD_FACTOR:g}x the seed spread")
+    )
+    return {"against_traced": fast, "traced_seed_spread": spread, "within_seed_spread": within}
+
+
+def _verdict(rows: dict, spread: dict) -> dict:
+    """Ratios Cycles / project (second renders), detection agreement, the target met or missed
+    (a fast full frame must also be within the traced frame's seed spread)."""
     figures = {
         k: {f: v[f] for f in ("name", "device", "wall_s", "cpu_s", "detected", "corner_err_px")}
         for k, v in rows.items()
     }
+    figures.update(spread)
     if "cycles" not in rows:
         return figures
     p, c = rows["project"], rows["cycles"]
@@ -236,13 +293,19 @@ def _verdict(rows: dict) -> dict:
         if equal and p["detected"]
         else float("nan")
     )
-    met = equal and min(wall, cpu) >= TARGET_RATIO
+    met = equal and min(wall, cpu) >= TARGET_RATIO and spread.get("within_seed_spread", True)
     print(
         f"  ratio Cycles / project (second renders): wall {wall:.1f}x, CPU {cpu:.1f}x; "
         f"detection {'equal' if equal else 'DIFFERS'}"
         + (f", corners {between:.2f} px apart" if np.isfinite(between) else "")
         + f"; target >= {TARGET_RATIO:g}x at equal detection: {'met' if met else 'MISSED'}"
     )
+    if "traced" in rows:
+        t = rows["traced"]
+        print(
+            f"  ratio Cycles / project with every pixel traced: wall "
+            f"{c['wall_s'][1] / t['wall_s'][1]:.1f}x, CPU {c['cpu_s'][1] / t['cpu_s'][1]:.1f}x"
+        )
     figures.update(
         ratio_wall=wall,
         ratio_cpu=cpu,

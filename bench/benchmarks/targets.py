@@ -136,7 +136,8 @@ def dataset_rate(config: DatasetConfig, workers: int, variant: str | None) -> di
 
 def render_ratio(scene: str, key: str) -> Outcome:
     """``bench render`` of ``scene`` at 4 spp: the smaller of its wall and CPU ratios; not
-    measured without bpy, or when the two renders' detections differ."""
+    measured without bpy, or when the two renders' detections differ, or when the marker's
+    crop + sky frame strays outside the traced frame's seed spread."""
     from bench.benchmarks.cycles_scene import INSTALL_HINT, import_bpy
     from bench.benchmarks.render import bench_render
 
@@ -148,8 +149,13 @@ def render_ratio(scene: str, key: str) -> Outcome:
     seconds = f"Cycles {figures['cycles']['wall_s'][1]:.2f} s, this renderer " + (
         f"{figures['project']['wall_s'][1]:.2f} s a frame (wall)"
     )
+    if "traced" in figures:
+        seconds += f"; crop + sky, every pixel traced {figures['traced']['wall_s'][1]:.2f} s"
     if not figures["detection_equal"]:
         why = f"not counted: detections differ between the renders (ratio {ratio:.1f}x)"
+        return Outcome(target, None, seconds, why)
+    if not figures.get("within_seed_spread", True):
+        why = f"not counted: the crop + sky frame strays from the traced one (ratio {ratio:.1f}x)"
         return Outcome(target, None, seconds, why)
     return Outcome(target, ratio, seconds)
 

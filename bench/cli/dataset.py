@@ -295,10 +295,16 @@ def cmd_dataset(args: argparse.Namespace) -> int:
         + ", ".join(f"{g} ({len(ids)})" for g, ids in groups.items())
     )
     if manifest["frames_rendered"]:
-        per_frame = {k: v / manifest["frames_rendered"] for k, v in manifest["stage_s"].items()}
+        per_frame = {
+            k.removesuffix("_s"): f"{v / manifest['frames_rendered']:.3f} s"
+            for k, v in manifest["stage_s"].items()
+        }
+        beside = {k: per_frame.pop(k) for k in ("optics", "sensor")}
         print(
             "per frame: "
-            + ", ".join(f"{k.removesuffix('_s')} {v:.3f} s" for k, v in per_frame.items())
+            + ", ".join(f"{k} {v}" for k, v in per_frame.items())
+            + "; in the twin's thread, beside the render: "
+            + ", ".join(f"{k} {v}" for k, v in beside.items())
         )
     return 0
 

@@ -43,6 +43,8 @@ from scenes.vegetation import (
 )
 
 if TYPE_CHECKING:
+    from collections.abc import Iterable
+
     from renderers.frame_sampling import FrameSampling
     from renderers.frames import FrameRecorder
 
@@ -55,9 +57,9 @@ class SampleTiming:
     frames_reused: int  # still frames recorded from the previous frame's optical image
     simulate_s: float
     render_s: float
-    optics_s: float  # the twin's optical stages, once per frame
-    sensor_s: float  # the twin's sensor, processing and stream stages
-    encode_s: float
+    optics_s: float  # the twin's optical stages, in their own thread beside the render
+    sensor_s: float  # the twin's sensor, processing and stream stages, likewise
+    encode_s: float  # the frame loop's time not rendering: waiting on the twin and the writers
     total_s: float
 
 
@@ -174,7 +176,8 @@ def run_sample(
     sim = simulate_sample(config, sample)
     t_sim = time.perf_counter()
 
-    # --- Frames: render, record; the video and its preview encode in threads meanwhile
+    # --- Frames: render here; the twin records frame f in a thread while f + 1 renders, and
+    # the video and its preview encode in threads of their own
     frames = sample_recorder(config, sample, sim)
     n_frames = len(sim.times_s)
     truth = [corners_of_frame(sim.labels, f) for f in range(n_frames)]
@@ -185,17 +188,24 @@ def run_sample(
             folder / "preview.mp4", it, *zip(*truth, strict=True), captions, sim.motion.fps
         )
     )
+
+    def record(radiances: Iterable[np.ndarray | None]) -> int:
+        count = 0
+        for radiance in radiances:
+            frame = frames.record(radiance)
+            video.put(frame)
+            preview.put(frame)
+            count += 1
+        return count
+
     t_frames = time.perf_counter()
-    with video, preview:
+    with video, preview, BackgroundWriter(record) as twin:
         for f in range(n_frames):
             if share is not None and f % CHECK_EVERY_FRAMES == 0:
                 set_threads(share.threads())
-            frame = frames.frame(f)
-            video.put(frame)
-            preview.put(frame)
+            twin.put(frames.render_once(f))
     n_written = video.count
-    twin_s = frames.optics_s + frames.sensor_s
-    encode_s = time.perf_counter() - t_frames - frames.render_s - twin_s  # waiting on the writers
+    encode_s = time.perf_counter() - t_frames - frames.render_s
 
     # --- Labels, camera
     with atomic_path(folder / "labels.parquet") as tmp:
