@@ -119,3 +119,28 @@ def test_still_frames_reuse_the_optical_image_and_match_a_fresh_render(variant, 
     assert reusing.frames_reused == len(still)
     # rendered only the frames that moved (rays counted, not timed: timing is the benchmark's)
     assert reusing.renderer.rays_traced == fresh.renderer.rays_traced * (5 - len(still)) // 5
+
+
+@pytest.mark.slow
+def test_the_twin_beside_the_render_writes_the_serial_frames(variant, pair_config, tmp_path):
+    """run_sample records frame f in the twin's thread while f + 1 renders: its video is byte
+    for byte the video of the same frames rendered and recorded one after another (the still
+    lead-in's reuse included)."""
+    from bench.dataset.config import default_profile
+    from bench.dataset.sample import run_sample, sample_recorder, simulate_sample
+
+    if variant.startswith("scalar"):
+        pytest.skip("frame rendering needs a JIT variant")
+    config = dataclasses.replace(
+        pair_config, camera=default_profile(), branches=((0.0,),), frames_step=6,
+        sampling=FrameSampling(marker_spp=1),
+    )  # fmt: skip
+    sample = config.samples()[0]
+    record = run_sample(config, sample, tmp_path / "data")
+    assert record["timing_s"]["frames_reused"] > 0  # a still lead-in, reused in the thread
+    sim = simulate_sample(config, sample)
+    serial = sample_recorder(config, sample, sim)
+    frames = [serial.frame(f) for f in range(len(sim.times_s))]
+    write_video(tmp_path / "serial.mp4", frames, sim.motion.fps)
+    video = tmp_path / "data" / sample.sample_id / "video.mp4"
+    assert video.read_bytes() == (tmp_path / "serial.mp4").read_bytes()
