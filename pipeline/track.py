@@ -17,10 +17,9 @@ import dataclasses
 from collections import Counter
 from collections.abc import Container, Iterable
 from dataclasses import dataclass, field
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
-import pandas as pd
 
 from pipeline.backends import BackendCrashError, get_backend
 from pipeline.detect import Detection, DetectorConfig, detect_markers
@@ -35,6 +34,9 @@ from scenes.tables import (
     rotations_of,
     translations_of,
 )
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 
 @dataclass(frozen=True)
@@ -199,6 +201,8 @@ class _Row(NamedTuple):
 
 def _table(rows: list[_Row]) -> pd.DataFrame:
     """The rows as a :data:`scenes.tables.TRACK` table (its dtypes even when empty)."""
+    import pandas as pd
+
     n = len(rows)
     none = np.full((4, 4), np.nan)  # a backend without a pose of its own
     own = [none if r.detection.own_T_cam_marker is None else r.detection.own_T_cam_marker

@@ -24,14 +24,17 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
-import trimesh
 
 from scenes.conventions import make_T
 from scenes.marker import MarkerSpec, carrier_mesh, print_mesh
 from scenes.rod_materials import COUPLING_LOSS_FACTOR, ROD_DENSITY_KG_M3, ROD_MODULUS_MPA
 from scenes.validation import FieldError
+
+if TYPE_CHECKING:
+    import trimesh
 
 FRAME_PLATE_HEIGHT_MM = 24.0  # the arc plate that carries the couplings, seen behind the markers
 FRAME_PLATE_THICKNESS_MM = 4.0
@@ -192,6 +195,8 @@ def tip_cam(spec: ArraySpec, angles_rad: np.ndarray) -> np.ndarray:
 
 def rod_mesh(spec: ArraySpec, sections: int = 8) -> trimesh.Trimesh:
     """The whisker rod in its whisker frame: from the coupling out along -z."""
+    import trimesh
+
     rod = trimesh.creation.cylinder(
         radius=spec.whisker_diameter_mm / 2, height=spec.whisker_length_mm, sections=sections
     )
@@ -201,6 +206,8 @@ def rod_mesh(spec: ArraySpec, sections: int = 8) -> trimesh.Trimesh:
 
 def marker_meshes(spec: ArraySpec, marker_id: int) -> tuple[trimesh.Trimesh, trimesh.Trimesh]:
     """(print, carrier-and-holder) of one marker in its marker frame."""
+    import trimesh
+
     marker = spec.marker_spec(marker_id)
     holder_len = spec.marker_offset_mm
     holder = trimesh.creation.box((2.0, 2.0, holder_len))
@@ -210,6 +217,8 @@ def marker_meshes(spec: ArraySpec, marker_id: int) -> tuple[trimesh.Trimesh, tri
 
 def frame_plate_mesh(spec: ArraySpec, segments: int = 96) -> trimesh.Trimesh:
     """The arc plate carrying the couplings, in the camera frame (static with the camera)."""
+    import trimesh
+
     half = math.radians(spec.arc_deg / 2 + FRAME_PLATE_MARGIN_DEG)
     a = np.linspace(-half, half, segments)
     r0 = spec.frame_radius_mm + 1.0

@@ -14,12 +14,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
-import trimesh
 
 from scenes.conventions import make_T, rot_x
 from scenes.obstacles import RigidCylinder
+
+if TYPE_CHECKING:
+    import trimesh
 
 #: Points on the leaf outline where the array plane cuts it for the mechanics: fixed, so the
 #: contacts are the same at every detail level (it is the default level's outline).
@@ -83,6 +86,8 @@ def leaf_rims(
 def leaf_mesh(rim: np.ndarray) -> trimesh.Trimesh:
     """Fans of the leaf outlines (m, k, 3) about their centroids, with both windings (the renderer
     is one-sided)."""
+    import trimesh
+
     m, k = rim.shape[:2]
     vertices = np.concatenate([rim.mean(axis=1)[:, None, :], rim], axis=1).reshape(-1, 3)
     start = (np.arange(m) * (k + 1))[:, None]
@@ -96,6 +101,8 @@ def twig_mesh(
     base: np.ndarray, tip: np.ndarray, diameter_mm: float, sections: int
 ) -> trimesh.Trimesh:
     """Prisms from each base to its tip, (n, 3) each."""
+    import trimesh
+
     return trimesh.util.concatenate(
         [
             trimesh.creation.cylinder(radius=0.5 * diameter_mm, segment=[b, e], sections=sections)
@@ -106,6 +113,8 @@ def twig_mesh(
 
 def branch_mesh(branches: tuple[RigidCylinder, ...], sections: int) -> trimesh.Trimesh:
     """Vertical rods filling the view band."""
+    import trimesh
+
     rods = []
     for b in branches:
         rod = trimesh.creation.cylinder(

@@ -9,12 +9,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
-import trimesh
 
 from scenes.array_ops import NUMPY
 from scenes.conventions import OPTICAL_AXIS_CAM, UP_CAM
+
+if TYPE_CHECKING:
+    import trimesh
 
 RGB = tuple[float, float, float]
 
@@ -173,6 +176,8 @@ def canopy_frame(sun: Sun, canopy: Canopy) -> tuple[np.ndarray, np.ndarray, np.n
 
 def canopy_mesh(sun: Sun, canopy: Canopy, segments: int = 10) -> trimesh.Trimesh:
     """The leaves as one mesh of flat ellipses scattered in the canopy plane (seeded)."""
+    import trimesh
+
     rng = np.random.default_rng(canopy.seed)
     lo, hi = canopy.leaf_length_mm
     mean_area = math.pi * 0.25 * ((lo + hi) / 2) ** 2 * 0.45

@@ -10,13 +10,16 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import cache
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
-import trimesh
 
 from scenes.conventions import transform_points
 from scenes.materials import BLACK_ALBEDO, WHITE_ALBEDO
+
+if TYPE_CHECKING:
+    import trimesh
 
 QUIET_ZONE_MODULES = 1
 CARRIER_MARGIN_MODULES = 1
@@ -101,6 +104,8 @@ def marker_albedo(spec: MarkerSpec) -> np.ndarray:
 
 def print_mesh(spec: MarkerSpec) -> trimesh.Trimesh:
     """The printed face: a square at z = 0 facing +z, with uv (0, 0) at the bottom-left corner."""
+    import trimesh
+
     h = spec.print_half_mm
     vertices = np.array([[-h, -h, 0.0], [h, -h, 0.0], [h, h, 0.0], [-h, h, 0.0]])
     faces = np.array([[0, 1, 2], [0, 2, 3]])
@@ -112,6 +117,8 @@ def print_mesh(spec: MarkerSpec) -> trimesh.Trimesh:
 
 def carrier_mesh(spec: MarkerSpec) -> trimesh.Trimesh:
     """The white carrier plate behind the print: a thin box, front face just behind z = 0."""
+    import trimesh
+
     h = spec.carrier_half_mm
     box = trimesh.creation.box(extents=(2 * h, 2 * h, CARRIER_THICKNESS_MM))
     box.apply_translation((0.0, 0.0, -0.5 * CARRIER_THICKNESS_MM - PRINT_GAP_MM))

@@ -53,9 +53,9 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
-import trimesh
 
 from scenes.array import ArraySpec
 from scenes.conventions import make_T, rot_y
@@ -84,6 +84,9 @@ from scenes.foliage_meshes import (
     twig_mesh,
 )
 from scenes.obstacles import CompliantContact, RigidCylinder
+
+if TYPE_CHECKING:
+    import trimesh
 
 # Geometry of the lab's set-up: SPEC 2 gives the branch; the rest are *estimates* of how the
 # foliage was hung (no drawing of it exists), each a constant a study can sweep.
@@ -234,6 +237,8 @@ def _strips(
     rng: np.random.Generator, kind: str, z_front: float
 ) -> tuple[list[CompliantContact], trimesh.Trimesh]:
     """A curtain of yawed strips hanging from an uncut sheet; one contact per strip at y = 0."""
+    import trimesh
+
     t = PAPER_THICKNESS_MM[kind]
     pitch = STRIP_WIDTH_MM + STRIP_GAP_MM
     n_half = int(STRIP_HALF_SPAN_MM // pitch) + 1

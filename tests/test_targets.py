@@ -131,7 +131,7 @@ def test_the_marker_ratio_counts_only_a_frame_within_the_traced_frames_seed_spre
     monkeypatch.setattr(cycles, "import_bpy", lambda: object())
     monkeypatch.setattr(render, "bench_render", lambda *a, **k: figures)
     outcome = t.render_ratio("marker", "2b")
-    assert "every pixel traced 1.50 s" in outcome.baseline
+    assert "crop + sky (1.50 s with every pixel traced)" in outcome.baseline
     if within:
         assert outcome.figure == 30.0 and outcome.met
     else:

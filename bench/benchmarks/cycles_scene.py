@@ -26,9 +26,9 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 from types import ModuleType
+from typing import TYPE_CHECKING
 
 import numpy as np
-import trimesh
 
 from renderers.window import Window
 from scenes.camera import FisheyeCamera
@@ -36,6 +36,9 @@ from scenes.conventions import transform_points
 from scenes.lighting import Lighting, Sky
 from scenes.marker import MarkerSpec, carrier_mesh, marker_albedo, print_mesh
 from scenes.materials import CARRIER_ALBEDO
+
+if TYPE_CHECKING:
+    import trimesh
 
 #: Camera frame -> Blender frame (a proper rotation: half a turn about x).
 CAM_TO_BLENDER = np.diag([1.0, -1.0, -1.0])
@@ -76,7 +79,7 @@ def check_lens(lens: FisheyeCamera) -> None:
 
 
 #: A scene part: name, mesh in the camera frame (uv kept), albedo (an RGB triple or a texture).
-Part = tuple[str, trimesh.Trimesh, tuple[float, float, float] | np.ndarray]
+Part = tuple[str, "trimesh.Trimesh", tuple[float, float, float] | np.ndarray]
 
 
 def marker_parts(marker: MarkerSpec, T_cam_marker: np.ndarray) -> list[Part]:

@@ -150,7 +150,8 @@ def render_ratio(scene: str, key: str) -> Outcome:
         f"{figures['project']['wall_s'][1]:.2f} s a frame (wall)"
     )
     if "traced" in figures:
-        seconds += f"; crop + sky, every pixel traced {figures['traced']['wall_s'][1]:.2f} s"
+        traced = figures["traced"]["wall_s"][1]
+        seconds += f", crop + sky ({traced:.2f} s with every pixel traced)"
     if not figures["detection_equal"]:
         why = f"not counted: detections differ between the renders (ratio {ratio:.1f}x)"
         return Outcome(target, None, seconds, why)

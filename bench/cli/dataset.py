@@ -257,8 +257,6 @@ def _dataset_config(args: argparse.Namespace) -> DatasetConfig:
 
 
 def cmd_dataset(args: argparse.Namespace) -> int:
-    from bench.dataset.generate import run_dataset
-
     config = dataset_config(args)
     out = check_out_folder(args.out or ("data/quick" if args.quick else "data/default"))
     limits.check_dataset(config, args.workers)
@@ -268,6 +266,8 @@ def cmd_dataset(args: argparse.Namespace) -> int:
         "rerun the same command to resume"
     )
     camera_file = profile_path(args.camera or DEFAULT_PROFILE)
+    from bench.dataset.generate import run_dataset  # after the checks: a refusal stays quick
+
     manifest = run_dataset(
         config,
         out,

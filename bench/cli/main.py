@@ -268,14 +268,14 @@ def default_out(config: StudyConfig, quick: bool) -> Path:
 
 
 def _cmd_detectability(args: argparse.Namespace) -> int:
-    from bench.study.run import run_study
-
     config = study_config(args)
     out = check_out_folder(args.out if args.out is not None else default_out(config, args.quick))
     workers = limits.default_workers() if args.workers is None else args.workers
     limits.check_study(config, workers)
     executor = check_executor(args.executor, args.scheduler, args.workers)
     args.kept = f"finished cells are kept in {out / 'cells'}; rerun the same command to resume"
+    from bench.study.run import run_study  # after the checks: a refusal stays quick
+
     manifest = run_study(
         config,
         out,

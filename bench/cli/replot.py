@@ -21,9 +21,7 @@ import dataclasses
 from collections.abc import Callable, Sequence
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any
-
-import pandas as pd
+from typing import TYPE_CHECKING, Any
 
 from bench.common.atomic import atomic_path, write_json
 from bench.common.manifest import MANIFEST, sha256, whiskerbench_version, write_manifest
@@ -31,6 +29,9 @@ from bench.common.run_folder import open_folder
 from scenes.bounded_read import BoundedReadError, read_json
 from scenes.input_limits import RECORD_BYTES, RECORD_DEPTH
 from scenes.validation import FieldError
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 #: A score folder's manifest where ``make indoor`` copies it beside the table it describes.
 COPIED_SCORE_MANIFEST = "score-manifest.json"
@@ -160,6 +161,8 @@ def _table(folder: Path, record: dict, name: str) -> Path:
 
 
 def _csv(folder: Path, record: dict, name: str) -> pd.DataFrame:
+    import pandas as pd
+
     return pd.read_csv(_table(folder, record, name))
 
 

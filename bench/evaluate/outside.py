@@ -20,13 +20,15 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
-
-import pandas as pd
+from typing import TYPE_CHECKING
 
 from bench.common.executor import TaskPool
 from bench.dataset.verify import VerifiedDataset
 from bench.evaluate.branch_plugin import PREFIX as BRANCH_PLUGIN
 from pipeline.presets import PRESETS, PipelineConfig, get_pipeline
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 RESULTS = "results:"
 
