@@ -26,7 +26,6 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-import cv2
 import mitsuba as mi
 import numpy as np
 
@@ -34,14 +33,9 @@ from renderers.fisheye_trace import CHUNK_RAYS, BlockTracer, pad_rows
 from renderers.frame_sampling import check_light_paths
 from renderers.mitsuba_scene import CanopyScene, MarkerScene
 from renderers.variant import jit_variant_active
-from renderers.window import Window
+from renderers.window import Window, edge_pixels
 from scenes.camera import FisheyeCamera
 from scenes.lighting import Lighting, canopy_frame
-
-#: Adaptive anti-aliasing: a pixel takes every sample where its 3 x 3 neighbourhood's first-pass
-#: samples spread by more than this fraction of their light (edges); elsewhere (flat patches,
-#: the smooth sky) its first samples stand for all, within this fraction.
-ADAPTIVE_TOLERANCE = 1e-3
 
 
 @dataclass
@@ -146,13 +140,7 @@ class FisheyeRenderer:
             sky[rows_here] = (a.sky / np.float32(n_first)).reshape(bh, w, 3)
             sun[rows_here] = (a.sun / np.float32(n_first)).reshape(bh, w, 3)
             if len(rest):
-                # An edge between any two first-pass samples of a 3 x 3 neighbourhood flags its
-                # pixels: an edge passing between one pixel's samples and the next pixel's is
-                # caught too, not only one crossing a pixel's own samples.
-                box = np.ones((3, 3), np.uint8)
-                hi = cv2.dilate(a.light_max.reshape(bh, w), box, borderType=cv2.BORDER_REPLICATE)
-                lo = cv2.erode(a.light_min.reshape(bh, w), box, borderType=cv2.BORDER_REPLICATE)
-                edge = (hi - lo > ADAPTIVE_TOLERANCE * (np.abs(hi) + 1e-12)).ravel()
+                edge = edge_pixels(a.light_max.reshape(bh, w), a.light_min.reshape(bh, w)).ravel()
                 if edge.any():
                     b = self._tracer.trace(pixels[edge][:, rest], seed + counter, False)
                     counter += 1

@@ -5,8 +5,9 @@ around the carrier (:meth:`renderers.marker_renderer.MarkerRenderer.crop`) misse
 holds the sky's own radiance, with no sun and nothing to shadow or reflect. That part does not
 change from frame to frame, so :func:`sky_background` computes it once per lens and lighting with
 the renderer's own sky formula (:func:`renderers.sky_irradiance.sky_luminance`): at the pixel
-centre, averaged over the pixel's stratified sub-cells where the image circle cuts the pixel
-(black outside the circle). A frame then traces only its crop and pastes it in.
+centre, and averaged over the pixel's stratified sub-cells where the traced render would take
+every sample (:func:`renderers.window.edge_pixels`: the image circle's rim, the horizon, a
+backdrop's edge); black outside the circle. A frame then traces only its crop and pastes it in.
 ``whiskerbench bench render`` measures the result against the frame with every pixel traced.
 """
 
@@ -14,10 +15,10 @@ from __future__ import annotations
 
 import math
 
-import cv2
 import numpy as np
 
 from renderers.sky_irradiance import sky_luminance
+from renderers.window import edge_pixels
 from scenes.camera import FisheyeCamera
 from scenes.lighting import Lighting
 
@@ -28,23 +29,19 @@ BAND_ROWS = 128
 def sky_background(lens: FisheyeCamera, lighting: Lighting, spp: int) -> np.ndarray:
     """(height, width, 3) float32 linear RGB of the open sky through ``lens``, as the renderer
     would give pixels whose rays all miss: the sky along the pixel-centre ray, or the mean over
-    ``spp`` stratified sub-cells (at least 2 x 2) on the image circle's rim."""
+    ``spp`` stratified sub-cells (at least 2 x 2) where the light changes across a pixel's
+    neighbourhood (the adaptive pass's edges)."""
     if lighting.canopy is not None:
         raise ValueError(f"lighting {lighting.name!r}: a canopy's shadow needs every pixel traced")
     h, w = lens.height_px, lens.width_px
     ys, xs = np.mgrid[0:h, 0:w].astype(np.float64)
-    valid = lens.unproject_xy(xs, ys)[3]
-    # A pixel whose 3 x 3 neighbourhood straddles the circle's edge may be cut by it.
-    box = np.ones((3, 3), np.uint8)
-    inside = valid.astype(np.uint8)
-    rim = cv2.dilate(inside, box) != cv2.erode(inside, box)
     n = max(2, math.isqrt(spp))
     offsets = (np.arange(n) + 0.5) / n - 0.5
     out = np.empty((h, w), np.float64)
     for r0 in range(0, h, BAND_ROWS):
         rows = slice(r0, r0 + BAND_ROWS)
         out[rows] = _sky(lens, lighting, xs[rows], ys[rows])
-    ry, rx = np.nonzero(rim)
+    ry, rx = np.nonzero(edge_pixels(out, out))
     sub = [_sky(lens, lighting, rx + ox, ry + oy) for oy in offsets for ox in offsets]
     out[ry, rx] = np.mean(sub, axis=0)
     return (out[..., None] * np.asarray(lighting.sky.color, np.float64)).astype(np.float32)

@@ -5,9 +5,15 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from scenes.camera import FisheyeCamera
+
+#: Adaptive anti-aliasing: a pixel takes every sample where its 3 x 3 neighbourhood's first-pass
+#: samples spread by more than this fraction of their light (edges); elsewhere (flat patches,
+#: the smooth sky) its first samples stand for all, within this fraction.
+ADAPTIVE_TOLERANCE = 1e-3
 
 
 @dataclass(frozen=True)
@@ -88,3 +94,14 @@ class Window:
             cells = np.stack(np.meshgrid(np.arange(n), np.arange(n)), axis=-1).reshape(spp, 2)
             jitter = (cells + jitter) / n
         return self.pixel_centres()[:, :, None, :] - 0.5 + jitter
+
+
+def edge_pixels(light_max: np.ndarray, light_min: np.ndarray) -> np.ndarray:
+    """(H, W) bool: pixels whose 3 x 3 neighbourhood's light (each pixel's largest and smallest
+    first-pass sample) spreads by more than :data:`ADAPTIVE_TOLERANCE` of it. An edge passing
+    between one pixel's samples and the next pixel's flags both, not only one crossing a
+    pixel's own samples."""
+    box = np.ones((3, 3), np.uint8)
+    hi = cv2.dilate(light_max, box, borderType=cv2.BORDER_REPLICATE)
+    lo = cv2.erode(light_min, box, borderType=cv2.BORDER_REPLICATE)
+    return hi - lo > ADAPTIVE_TOLERANCE * (np.abs(hi) + 1e-12)

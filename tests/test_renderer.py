@@ -177,9 +177,9 @@ print(" ".join(map(str, out.radiance().ravel().tolist())))
 def test_adaptive_antialiasing_matches_every_sample_everywhere(variant, lighting_name, alpha, phi):
     """The adaptive first pass skips samples only where light is flat: the crop equals the
     full-spp render of the same jitter to within the tolerance, edges included."""
-    from renderers.fisheye import ADAPTIVE_TOLERANCE, FisheyeRenderer
+    from renderers.fisheye import FisheyeRenderer
     from renderers.marker_renderer import MarkerRenderer
-    from renderers.window import Window
+    from renderers.window import ADAPTIVE_TOLERANCE, Window
     from scenes.marker import carrier_outline
     from scenes.profile import load_profile
     from scenes.study import study_pose
