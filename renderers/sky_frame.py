@@ -34,16 +34,20 @@ def sky_background(lens: FisheyeCamera, lighting: Lighting, spp: int) -> np.ndar
     if lighting.canopy is not None:
         raise ValueError(f"lighting {lighting.name!r}: a canopy's shadow needs every pixel traced")
     h, w = lens.height_px, lens.width_px
-    ys, xs = np.mgrid[0:h, 0:w].astype(np.float64)
-    n = max(2, math.isqrt(spp))
-    offsets = (np.arange(n) + 0.5) / n - 0.5
     out = np.empty((h, w), np.float64)
     for r0 in range(0, h, BAND_ROWS):
-        rows = slice(r0, r0 + BAND_ROWS)
-        out[rows] = _sky(lens, lighting, xs[rows], ys[rows])
-    ry, rx = np.nonzero(edge_pixels(out, out))
-    sub = [_sky(lens, lighting, rx + ox, ry + oy) for oy in offsets for ox in offsets]
-    out[ry, rx] = np.mean(sub, axis=0)
+        ys, xs = np.mgrid[r0 : min(r0 + BAND_ROWS, h), 0:w].astype(np.float64)
+        out[r0 : r0 + BAND_ROWS] = _sky(lens, lighting, xs, ys)
+    n = max(2, math.isqrt(spp))
+    offsets = (np.arange(n) + 0.5) / n - 0.5
+    edge_y, edge_x = np.nonzero(edge_pixels(out, out))  # a third of the frame in the sun preset
+    for i in range(0, len(edge_y), BAND_ROWS * w):
+        y, x = edge_y[i : i + BAND_ROWS * w], edge_x[i : i + BAND_ROWS * w]
+        total = np.zeros(len(y))
+        for oy in offsets:
+            for ox in offsets:
+                total += _sky(lens, lighting, x + ox, y + oy)
+        out[y, x] = total / n**2
     return (out[..., None] * np.asarray(lighting.sky.color, np.float64)).astype(np.float32)
 
 
