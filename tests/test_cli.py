@@ -127,10 +127,13 @@ from bench.cli.main import main
 def loaded():
     return [m for m in ("pandas", "trimesh", "matplotlib") if m in sys.modules]
 assert not loaded(), loaded()
-for argv in (["dataset", "--quick", "--frames-step", "0"], ["detectability", "--images", "0"]):
+refused = (["dataset", "--quick", "--frames-step", "0"], ["detectability", "--images", "0"],
+           ["score", "no-such-dataset", "--pipeline", "paper"])
+for argv in refused:
     assert main(argv) == 2
     assert not loaded(), (argv, loaded())
 """
     done = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True)
     assert done.returncode == 0, done.stderr[-2000:]
     assert "--frames-step" in done.stderr and "--images" in done.stderr
+    assert "no-such-dataset: not a dataset folder" in done.stderr

@@ -214,8 +214,6 @@ def check_workers_option(args: argparse.Namespace) -> str:
 
 
 def cmd_score(args: argparse.Namespace) -> int:
-    from bench.evaluate.score import score_dataset
-
     def fail(message: str) -> int:
         print(f"whiskerbench score: error: {' '.join(message.split())}", file=sys.stderr)
         return 2
@@ -243,6 +241,8 @@ def cmd_score(args: argparse.Namespace) -> int:
         f"samples scored so far are kept in {out}/<sample id>/; samples.csv is written at the "
         "end: rerun the same command"
     )
+    from bench.evaluate.score import score_dataset  # after the checks: a refusal stays quick
+
     try:
         table = score_dataset(
             args.dataset, args.pipeline, out, None, args.workers, executor, args.scheduler

@@ -383,7 +383,9 @@ def _downscale(
 
 class BackgroundWriter:
     """Feeds frames to a video writer running in its own thread, so that encoding (ffmpeg's pipe,
-    OpenCV's drawing: both release the GIL) overlaps the caller's next frame.
+    OpenCV's drawing: both release the GIL) overlaps the caller's next frame. Any consumer of a
+    stream of items works the same way: the dataset's camera twin records each frame's radiance
+    (or None, a still frame) in one while the next frame renders.
 
     ``write`` is called as ``write(frames)`` with an iterable that yields what :meth:`put` is
     given, e.g. ``lambda frames: write_video(path, frames, fps)``. Used as a context manager: an
@@ -419,7 +421,7 @@ class BackgroundWriter:
             while not self._ended and self._queue.get() is not self._END:  # until the block ends
                 pass
 
-    def put(self, frame: np.ndarray) -> None:
+    def put(self, frame: np.ndarray | None) -> None:
         """Queue one frame (waits while ``depth`` frames are waiting); raises the writer's error."""
         if self._error is not None:
             raise self._error
