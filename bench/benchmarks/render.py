@@ -200,7 +200,8 @@ def bench_render(
     rows = {"project": _run("project", chosen, bench.project, bench)}
     spread = {}
     if bench.traced is not None:
-        rows["traced"] = _run("project, every pixel traced", chosen, bench.traced, bench)
+        name = "project, every pixel traced"
+        rows["traced"] = _run(name, chosen, bench.traced, bench, keep_first=True)
         spread = _against_traced(rows, bench.crop)
     bpy = None
     if use_cycles:
@@ -230,8 +231,9 @@ def bench_render(
     return figures
 
 
-def _run(name: str, device: str, render, bench: _Scene) -> dict:
-    """Time one renderer's two renders, detect on the second; print one line."""
+def _run(name: str, device: str, render, bench: _Scene, keep_first: bool = False) -> dict:
+    """Time one renderer's two renders, detect on the second; print one line. ``keep_first``:
+    also keep the first render's 8-bit image (another seed: the traced frame's spread)."""
     radiances, walls, cpus = _time(render)
     image = camera_image(radiances[1], bench.exposure)
     found = bench.outcome(image)
@@ -239,11 +241,10 @@ def _run(name: str, device: str, render, bench: _Scene) -> dict:
         f"  {name} ({device}): first render {walls[0]:.2f} s wall / {cpus[0]:.2f} s CPU, "
         f"then {walls[1]:.2f} s wall / {cpus[1]:.2f} s CPU; {bench.describe(found)}"
     )
-    first = camera_image(radiances[0], bench.exposure)
-    return {
-        "name": name, "device": device, "wall_s": walls, "cpu_s": cpus, "image": image,
-        "first_image": first, **found,
-    }  # fmt: skip
+    row = {"name": name, "device": device, "wall_s": walls, "cpu_s": cpus, "image": image, **found}
+    if keep_first:
+        row["first_image"] = camera_image(radiances[0], bench.exposure)
+    return row
 
 
 def _against_traced(rows: dict, crop: Window) -> dict:
