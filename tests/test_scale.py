@@ -1,5 +1,10 @@
 """``bench scale``: a row per (executor, workers), positive rates, identical outputs, and the
-frame count of the extrapolation equal to what the generator renders."""
+frame count of the extrapolation equal to what the generator renders.
+
+The end-to-end run takes the in-process baseline and a pool: the benchmark hands the executor's
+name to the study and the dataset and nothing else, and the same bytes on Dask are
+``tests/test_dask.py``'s to check (the study on every executor, the dataset resumed on Dask).
+A Dask row here took this test from 8.9 to 14.3 s (run alone, 2026-11-28)."""
 
 from __future__ import annotations
 
@@ -56,13 +61,9 @@ def test_scale_rows_rates_and_identical_outputs(variant, tmp_path, pair_config, 
 
     dataset = dataclasses.replace(pair_config, frames_step=FRAMES_STEP)
     assert default_dataset_frames(dataset) >= 2 * len(dataset.samples())  # videos, not stills
-    figures = bench_scale(STUDY, dataset, ("inline", "pool", "dask"), 2, variant, tmp_path / "b")
+    figures = bench_scale(STUDY, dataset, ("inline", "pool"), 2, variant, tmp_path / "b")
     rows = figures["rows"]
-    assert [(r["executor"], r["workers"]) for r in rows] == [
-        ("inline", 1),
-        ("pool", 2),
-        ("dask", 2),
-    ]
+    assert [(r["executor"], r["workers"]) for r in rows] == [("inline", 1), ("pool", 2)]
     assert all(r["images_per_s"] > 0 and r["frames_per_s"] > 0 for r in rows)
     assert figures["outputs_identical"] is True
     assert "outputs identical: yes" in capsys.readouterr().out
