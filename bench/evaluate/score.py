@@ -38,7 +38,6 @@ from bench.common.manifest import (  # noqa: E402
 )
 from bench.common.run_folder import claim, open_folder  # noqa: E402
 from bench.dataset.verify import VerifiedDataset, verify_dataset  # noqa: E402
-from bench.evaluate.grid_plot import plot_grid
 from bench.evaluate.results_file import ExternalDetections, frames_per_s  # noqa: E402
 from bench.evaluate.score_units import check_own_samples, reused_row, run_units, seal_row
 from pipeline.presets import PipelineConfig  # noqa: E402
@@ -384,6 +383,10 @@ def score_dataset(
         table = table.reindex(columns=[*table, *(c for c in SCORED_COLUMNS if c not in table)])
         with atomic_path(out_dir / "samples.csv") as tmp:
             table.to_csv(tmp, index=False)
+        # pyplot loaded here, not in the pool's workers, which import this module for
+        # _score_sample and draw nothing: 0.2-0.3 s a worker
+        from bench.evaluate.grid_plot import plot_grid
+
         untimed = external is not None and table["frames_per_s"].isna().all()
         for (protocol, lighting), part in table.groupby(["protocol", "lighting"]):
             plot_grid(

@@ -21,7 +21,6 @@ from bench.common.executor import TaskPool, effective_executor
 from bench.common.manifest import hash_files
 from bench.common.resumable import finish_run, open_run
 from bench.common.units import DAMAGED, DONE
-from bench.study import plots as report_plots
 from bench.study import report
 from bench.study.cells import cell_state, init_study_worker, run_cell
 from bench.study.config import Cell, StudyConfig, StudyConfigError, nondefault_options
@@ -198,7 +197,10 @@ def run_study(
         }
         wall["tables_s"] = time.perf_counter() - t_tab
 
-        # --- Plots
+        # --- Plots (pyplot loaded here, not in the pool's workers, which import this module
+        # for _run_task: 0.2-0.3 s a worker)
+        from bench.study import plots as report_plots
+
         t_plot = time.perf_counter()
         detector = {"detector": config.detector_label, "options": nondefault_options(config)}
         for name, plot, table, options in (
