@@ -137,3 +137,16 @@ for argv in refused:
     assert done.returncode == 0, done.stderr[-2000:]
     assert "--frames-step" in done.stderr and "--images" in done.stderr
     assert "no-such-dataset: not a dataset folder" in done.stderr
+
+
+def test_a_pools_worker_loads_no_plotting_library():
+    """A study's or score's pool worker imports the module of its task (``_run_task``,
+    ``_score_sample``) and draws nothing: pyplot stays out of it (0.2-0.3 s of each worker's
+    start); the parent loads it where it draws."""
+    code = """
+import sys
+import bench.evaluate.score, bench.study.run
+assert "matplotlib.pyplot" not in sys.modules, "pyplot loaded"
+"""
+    done = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr[-2000:]
