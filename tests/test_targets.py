@@ -7,7 +7,9 @@ from __future__ import annotations
 import csv
 import io
 import json
+import os
 import shutil
+import time
 
 import pytest
 
@@ -31,7 +33,7 @@ def fake_rates(monkeypatch):
         calls.append((config, workers, variant))
         rate = rates["gpu" if variant == "cuda_ad_rgb" else workers]
         return {"frames_per_s": rate, "frames_rendered": 30, "wall_s": 30 / rate,
-                "variant": variant or "llvm_ad_rgb"}  # fmt: skip
+                "variant": variant or "llvm_ad_rgb", "cpu_s": 6.0}  # fmt: skip
 
     monkeypatch.setattr(t, "dataset_rate", fake)
     monkeypatch.setattr(t, "gpu_present", lambda: False)
@@ -68,6 +70,9 @@ def test_fake_figures_decide_met_and_unmeasured_rows_say_why(fake_rates, rates, 
     assert by_key["1a"].figure == rates[2] and by_key["1b"].figure == rates[1]
     assert by_key["1a"].met is (rates[2] >= 15) and by_key["1b"].met is (rates[1] >= 8)
     assert f"{rates[2] / rates[1]:.2f}x the 1-worker rate" in by_key["1a"].baseline
+    cores = os.cpu_count()  # 6 s of CPU for 30 frames: 0.2 s a frame
+    bound = f"0.200 s of CPU a frame: {cores} cores allow at most {cores / 0.2:.1f} frames/s"
+    assert bound in by_key["1a"].baseline and by_key["1b"].baseline == bound
     hours = default_dataset_frames(INDOOR) / rates[2] / 3600
     assert by_key["1c"].figure == pytest.approx(hours) and by_key["1c"].met is (hours < 1.5)
     assert "estimate" in by_key["1c"].baseline
@@ -84,6 +89,24 @@ def test_fake_figures_decide_met_and_unmeasured_rows_say_why(fake_rates, rates, 
     assert [line.split(" | ")[3] for line in lines[2:]] == [
         {True: "yes", False: "no", None: "n/a"}[o.met] for o in outcomes
     ]
+
+
+def _burn(seconds: float) -> None:
+    end = time.process_time() + seconds
+    while time.process_time() < end:
+        pass
+
+
+def test_cpu_seconds_count_a_joined_child():
+    """A pool's workers are joined when it closes: their CPU counts (1a's CPU a frame)."""
+    import multiprocessing
+
+    before = t.cpu_seconds()
+    child = multiprocessing.get_context("spawn").Process(target=_burn, args=(0.4,))
+    child.start()
+    child.join()
+    assert t.cpu_seconds() - before >= 0.4
+    assert t.cpu_bound(4.0, 20, 2) == "0.200 s of CPU a frame: 2 cores allow at most 10.0 frames/s"
 
 
 def test_quick_steps_the_frames_and_renders_no_cycles(fake_rates, monkeypatch):
@@ -203,6 +226,7 @@ def test_quick_run_prints_a_row_per_target(variant, pair_config, tmp_path, capsy
     measured = {o.target.key for o in outcomes if o.figure is not None}
     assert {"1a", "1b", "1c"} <= measured
     assert all(o.figure > 0 for o in outcomes if o.figure is not None)
+    assert " s of CPU a frame: " in {o.target.key: o for o in outcomes}["1a"].baseline
 
 
 @pytest.mark.skipif(shutil.which("make") is None, reason="needs make")

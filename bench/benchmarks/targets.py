@@ -52,7 +52,7 @@ class Target:
 @dataclass(frozen=True)
 class Outcome:
     """A target's figure in this run, or None with the reason in ``why``; ``baseline``: the
-    ratio against a baseline of the same run, or how an estimate was made."""
+    ratio against a baseline of the same run, how an estimate was made, or the CPU it took."""
 
     target: Target
     figure: float | None
@@ -129,9 +129,28 @@ BY_KEY = {t.key: t for t in TARGETS}
 
 
 def dataset_rate(config: DatasetConfig, workers: int, variant: str | None) -> dict:
-    """``run_dataset`` from scratch in a temporary folder: its manifest (``frames_per_s``)."""
+    """``run_dataset`` from scratch in a temporary folder: its manifest (``frames_per_s``),
+    with ``cpu_s``: the CPU seconds it took in this process and in its pool's workers (joined
+    when the pool closes, so counted among this process's children)."""
+    before = cpu_seconds()
     with tempfile.TemporaryDirectory() as tmp:
-        return run_dataset(config, Path(tmp) / "data", variant, workers, progress=False)
+        manifest = run_dataset(config, Path(tmp) / "data", variant, workers, progress=False)
+    return {**manifest, "cpu_s": cpu_seconds() - before}
+
+
+def cpu_seconds() -> float:
+    """User and system CPU seconds of this process and of its children that have ended."""
+    t = os.times()
+    return t.user + t.system + t.children_user + t.children_system
+
+
+def cpu_bound(cpu_s: float, frames: int, cores: int) -> str:
+    """The CPU a frame took and the rate ``cores`` would give if every core did nothing else."""
+    per_frame = cpu_s / frames
+    return (
+        f"{per_frame:.3f} s of CPU a frame: {cores} cores allow at most "
+        f"{cores / per_frame:.1f} frames/s"
+    )
 
 
 def render_ratio(scene: str, key: str) -> Outcome:
@@ -206,23 +225,30 @@ def measure(
         config = dataclasses.replace(quick_dataset, frames_step=QUICK_FRAMES_STEP)
         suffix = f" --frames-step {QUICK_FRAMES_STEP}"
     variant_option = " --variant llvm_ad_rgb" if cpu_variant else ""
-    rates = {}
+    rates, bound, cores = {}, {}, os.cpu_count() or 1
     for key, workers in (("1b", 1), ("1a", 2)):  # one worker first: the baseline
         manifest = dataset_rate(config, workers, cpu_variant)
         rates[key] = manifest["frames_per_s"]
+        bound[key] = cpu_bound(manifest["cpu_s"], manifest["frames_rendered"], cores)
         print(
             f"  {key}: {manifest['frames_rendered']} frames in {manifest['wall_s']:.1f} s, "
-            f"{rates[key]:.2f} frames/s ({workers} worker(s), {manifest['variant']})",
+            f"{rates[key]:.2f} frames/s ({workers} worker(s), {manifest['variant']}); "
+            f"{bound[key]}",
             flush=True,
         )
     out = [
         Outcome(
             BY_KEY["1a"],
             rates["1a"],
-            f"{rates['1a'] / rates['1b']:.2f}x the 1-worker rate",
+            f"{rates['1a'] / rates['1b']:.2f}x the 1-worker rate; {bound['1a']}",
             command=BY_KEY["1a"].command + suffix + variant_option,
         ),
-        Outcome(BY_KEY["1b"], rates["1b"], command=BY_KEY["1b"].command + suffix + variant_option),
+        Outcome(
+            BY_KEY["1b"],
+            rates["1b"],
+            bound["1b"],
+            command=BY_KEY["1b"].command + suffix + variant_option,
+        ),
     ]
     frames = default_dataset_frames(indoor)
     out.append(
