@@ -5,8 +5,9 @@ is piecewise constant: on the quick dataset's zone, 94% of the pixels hold the s
 two seeds, the spread being all at edges (marker modules, leaves, rods; moving or not). So the
 first pass renders one sample per pixel (:attr:`RayPlan.first <renderers.frame_rays.RayPlan>`:
 over each 2 x 2 block the four strata, at four time samples) and the second pass the pixel's
-other samples only where the first pass's values in the pixel's 3 x 3 neighbourhood differ by more
-than :data:`CONTRAST_TOL` of their largest (an edge within the neighbourhood, in space or, as the
+other samples only where the first pass's values (the largest channel) in the pixel's 3 x 3
+neighbourhood differ by more than :data:`~renderers.window.ADAPTIVE_TOLERANCE` of their largest
+(:func:`~renderers.window.edge_pixels`: an edge within the neighbourhood, in space or, as the
 neighbours' samples lie at other times, in time). A pixel left at one sample had neighbours of
 one value: its own samples would have agreed. Pixels that get all their samples get the exact
 samples, sums and divisor of one pass (bit for bit: the sums are kept per time sample, in the
@@ -18,14 +19,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import cv2
 import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-#: A first-pass neighbourhood is flat when its values (the largest channel) span at most this
-#: fraction of their largest: far below one 8-bit level at any brightness of the sRGB curve.
-CONTRAST_TOL = 1e-3
+from renderers.window import edge_pixels
 
 
 @dataclass
@@ -62,17 +60,11 @@ def needs_more(first: np.ndarray, band_rows: slice) -> np.ndarray:
     flat. The band's rows are judged on their own (their border replicated), so a band frame and a
     full frame flag the same pixels there."""
     values = np.maximum(np.maximum(first[..., 0], first[..., 1]), first[..., 2])
-    flags = _edges(values)
+    flags = edge_pixels(values, values)
     if band_rows != slice(0, values.shape[0]):
-        flags[band_rows] = _edges(np.ascontiguousarray(values[band_rows]))
+        band = np.ascontiguousarray(values[band_rows])
+        flags[band_rows] = edge_pixels(band, band)
     return flags
-
-
-def _edges(values: np.ndarray) -> np.ndarray:
-    kernel = np.ones((3, 3), np.uint8)
-    high = cv2.dilate(values, kernel, borderType=cv2.BORDER_REPLICATE)
-    low = cv2.erode(values, kernel, borderType=cv2.BORDER_REPLICATE)
-    return (high - low) > CONTRAST_TOL * high
 
 
 class TwoPasses:

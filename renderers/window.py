@@ -12,7 +12,8 @@ from scenes.camera import FisheyeCamera
 
 #: Adaptive anti-aliasing: a pixel takes every sample where its 3 x 3 neighbourhood's first-pass
 #: samples spread by more than this fraction of their light (edges); elsewhere (flat patches,
-#: the smooth sky) its first samples stand for all, within this fraction.
+#: the smooth sky) its first samples stand for all, within this fraction: far below one 8-bit
+#: level at any brightness of the sRGB curve.
 ADAPTIVE_TOLERANCE = 1e-3
 
 
