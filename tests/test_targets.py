@@ -10,11 +10,13 @@ import json
 import os
 import shutil
 import time
+from dataclasses import replace
 
 import pytest
 
 from bench.benchmarks import targets as t
 from bench.benchmarks.scale import default_dataset_frames
+from bench.cli.main import _parser
 from bench.dataset.config import DatasetConfig
 from scenes.validation import FieldError
 
@@ -26,12 +28,13 @@ HEADER = "| target | figure | threshold | met | baseline / ratio | command |"
 @pytest.fixture
 def fake_rates(monkeypatch):
     """dataset_rate answers from a table {workers: frames/s} (and records its calls)."""
-    rates = {1: 10.0, 2: 20.0}
+    rates = {1: 10.0, 2: 20.0, "fewest": 25.0}
     calls = []
 
     def fake(config, workers, variant):
         calls.append((config, workers, variant))
-        rate = rates["gpu" if variant == "cuda_ad_rgb" else workers]
+        fewest = config.sampling.subframes == 1
+        rate = rates["gpu" if variant == "cuda_ad_rgb" else "fewest" if fewest else workers]
         return {"frames_per_s": rate, "frames_rendered": 30, "wall_s": 30 / rate,
                 "variant": variant or "llvm_ad_rgb", "cpu_s": 6.0}  # fmt: skip
 
@@ -73,6 +76,11 @@ def test_fake_figures_decide_met_and_unmeasured_rows_say_why(fake_rates, rates, 
     cores = os.cpu_count()  # 6 s of CPU for 30 frames: 0.2 s a frame
     bound = f"0.200 s of CPU a frame: {cores} cores allow at most {cores / 0.2:.1f} frames/s"
     assert bound in by_key["1a"].baseline and by_key["1b"].baseline == bound
+    assert by_key["1a"].baseline.endswith(
+        "at the fewest rays (--spp 1 --subframes 1, which the ladder refuses for video): "
+        f"25.00 frames/s, {bound}"
+    )
+    assert by_key["1a"].figure == rates[2]  # the fewest rays' rate is a bound, not the figure
     hours = default_dataset_frames(INDOOR) / rates[2] / 3600
     assert by_key["1c"].figure == pytest.approx(hours) and by_key["1c"].met is (hours < 1.5)
     assert "estimate" in by_key["1c"].baseline
@@ -89,6 +97,16 @@ def test_fake_figures_decide_met_and_unmeasured_rows_say_why(fake_rates, rates, 
     assert [line.split(" | ")[3] for line in lines[2:]] == [
         {True: "yes", False: "no", None: "n/a"}[o.met] for o in outcomes
     ]
+
+
+def test_the_fewest_rays_change_only_the_sampling():
+    """One ray a pixel at one time sample; the grid, camera and frames stay the quick run's."""
+    fewest = t.fewest_rays(QUICK)
+    assert (fewest.sampling.marker_spp, fewest.sampling.background_spp) == (1, 1)
+    assert fewest.sampling.subframes == 1 and QUICK.sampling.subframes == 4
+    assert replace(fewest, sampling=QUICK.sampling) == QUICK
+    assert t.FEWEST_RAYS_OPTIONS == "--spp 1 --subframes 1"  # the dataset options it stands for
+    assert _parser().parse_args(["dataset", *t.FEWEST_RAYS_OPTIONS.split()]).spp == 1
 
 
 def _burn(seconds: float) -> None:
@@ -226,7 +244,8 @@ def test_quick_run_prints_a_row_per_target(variant, pair_config, tmp_path, capsy
     measured = {o.target.key for o in outcomes if o.figure is not None}
     assert {"1a", "1b", "1c"} <= measured
     assert all(o.figure > 0 for o in outcomes if o.figure is not None)
-    assert " s of CPU a frame: " in {o.target.key: o for o in outcomes}["1a"].baseline
+    row_1a = {o.target.key: o for o in outcomes}["1a"].baseline
+    assert " s of CPU a frame: " in row_1a and "at the fewest rays (--spp 1 --subframes 1" in row_1a
 
 
 @pytest.mark.skipif(shutil.which("make") is None, reason="needs make")
