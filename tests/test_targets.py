@@ -77,7 +77,7 @@ def test_fake_figures_decide_met_and_unmeasured_rows_say_why(fake_rates, rates, 
     bound = f"0.200 s of CPU a frame: {cores} cores allow at most {cores / 0.2:.1f} frames/s"
     assert bound in by_key["1a"].baseline and by_key["1b"].baseline == bound
     assert by_key["1a"].baseline.endswith(
-        "at the fewest rays (--spp 1 --subframes 1, which the ladder refuses for video): "
+        "at the fewest rays (--spp 1 --subframes 1, under the 4 spp the ladder keeps for video): "
         f"25.00 frames/s, {bound}"
     )
     assert by_key["1a"].figure == rates[2]  # the fewest rays' rate is a bound, not the figure

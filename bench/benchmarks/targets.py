@@ -142,9 +142,9 @@ def dataset_rate(config: DatasetConfig, workers: int, variant: str | None) -> di
 
 def fewest_rays(config: DatasetConfig) -> DatasetConfig:
     """``config`` traced with the fewest rays the renderer takes: one a pixel, at one time
-    sample. The fidelity ladder refuses it for video (results/ladder: marker spp 1 and 2 stray
-    from the reference), so it is no setting to use, only the bound on what fewer rays can give:
-    where even it misses 1a, the render alone cannot meet it."""
+    sample. The fidelity ladder keeps 4 spp for video (results/ladder: marker spp 1 and 2 stray
+    from the reference, at 4 time samples), so this is no setting to use, only the bound on
+    what fewer rays can give: where even it misses 1a, no ray count meets it."""
     sampling = replace(config.sampling, marker_spp=1, background_spp=1, subframes=1)
     return replace(config, sampling=sampling)
 
@@ -247,7 +247,7 @@ def measure(
         )
     floor = dataset_rate(fewest_rays(config), 2, cpu_variant)
     floor_text = (
-        f"the fewest rays ({FEWEST_RAYS_OPTIONS}, which the ladder refuses for video): "
+        f"the fewest rays ({FEWEST_RAYS_OPTIONS}, under the 4 spp the ladder keeps for video): "
         f"{floor['frames_per_s']:.2f} frames/s, "
         f"{cpu_bound(floor['cpu_s'], floor['frames_rendered'], cores)}"
     )
