@@ -99,14 +99,18 @@ def test_fake_figures_decide_met_and_unmeasured_rows_say_why(fake_rates, rates, 
     ]
 
 
-def test_the_fewest_rays_change_only_the_sampling():
-    """One ray a pixel at one time sample; the grid, camera and frames stay the quick run's."""
+def test_the_fewest_rays_change_only_the_sampling_as_the_options_named_do():
+    """One ray a pixel at one time sample; the grid, camera and frames stay the quick run's,
+    and the row's options give the same dataset on the command line."""
+    from bench.cli.dataset import dataset_config
+
     fewest = t.fewest_rays(QUICK)
     assert (fewest.sampling.marker_spp, fewest.sampling.background_spp) == (1, 1)
     assert fewest.sampling.subframes == 1 and QUICK.sampling.subframes == 4
     assert replace(fewest, sampling=QUICK.sampling) == QUICK
-    assert t.FEWEST_RAYS_OPTIONS == "--spp 1 --subframes 1"  # the dataset options it stands for
-    assert _parser().parse_args(["dataset", *t.FEWEST_RAYS_OPTIONS.split()]).spp == 1
+    quick = dataset_config(_parser().parse_args(["dataset", "--quick"]))
+    named = ["dataset", "--quick", *t.FEWEST_RAYS_OPTIONS.split()]
+    assert dataset_config(_parser().parse_args(named)) == t.fewest_rays(quick) != quick
 
 
 def _burn(seconds: float) -> None:
