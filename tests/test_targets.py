@@ -28,13 +28,14 @@ HEADER = "| target | figure | threshold | met | baseline / ratio | command |"
 @pytest.fixture
 def fake_rates(monkeypatch):
     """dataset_rate answers from a table {workers: frames/s} (and records its calls)."""
-    rates = {1: 10.0, 2: 20.0, "fewest": 25.0}
+    rates = {1: 10.0, 2: 20.0, "fewest": 25.0, "indoor": 4.0}
     calls = []
 
     def fake(config, workers, variant):
         calls.append((config, workers, variant))
-        fewest = config.sampling.subframes == 1
-        rate = rates["gpu" if variant == "cuda_ad_rgb" else "fewest" if fewest else workers]
+        kind = "fewest" if config.sampling.subframes == 1 else workers
+        kind = "indoor" if config.protocols == ("indoor",) else kind
+        rate = rates["gpu" if variant == "cuda_ad_rgb" else kind]
         return {"frames_per_s": rate, "frames_rendered": 30, "wall_s": 30 / rate,
                 "variant": variant or "llvm_ad_rgb", "cpu_s": 6.0}  # fmt: skip
 
@@ -81,9 +82,16 @@ def test_fake_figures_decide_met_and_unmeasured_rows_say_why(fake_rates, rates, 
         f"25.00 frames/s, {bound}"
     )
     assert by_key["1a"].figure == rates[2]  # the fewest rays' rate is a bound, not the figure
-    hours = default_dataset_frames(INDOOR) / rates[2] / 3600
+    gain = rates[2] / rates[1]  # the indoor sample's rate (4 frames/s) times 1a's over 1b
+    hours = default_dataset_frames(INDOOR) / (4.0 * gain) / 3600
     assert by_key["1c"].figure == pytest.approx(hours) and by_key["1c"].met is (hours < 1.5)
-    assert "estimate" in by_key["1c"].baseline
+    assert by_key["1c"].baseline == (
+        f"estimate: {default_dataset_frames(INDOOR):,} indoor frames at the rate of its first "
+        f"sample, soft-far-none-indoor-sun (30 frames, 1 worker: 4.00 frames/s; {bound}), "
+        f"times 1a's gain over 1b ({gain:.2f}x)"
+    )
+    (indoor,) = [c for c in fake_rates[1] if c[0].protocols == ("indoor",)]
+    assert indoor[0] == t.first_sample(INDOOR) and indoor[1] == 1  # one sample, one worker
     for key in ("2a", "2b"):
         assert by_key[key].figure is None and "bpy not installed" in by_key[key].why
     assert by_key["3"].figure is None and "no device on this machine" in by_key["3"].why
@@ -113,6 +121,17 @@ def test_the_fewest_rays_change_only_the_sampling_as_the_options_named_do():
     assert dataset_config(_parser().parse_args(named)) == t.fewest_rays(quick) != quick
 
 
+def test_the_first_sample_is_the_grids_first_and_only_it():
+    grid = DatasetConfig(
+        foliage=("stiff", "soft"), distances=("close", "far"), protocols=("indoor",)
+    )
+    one = t.first_sample(grid)
+    assert one.samples() == grid.samples()[:1] and len(grid.samples()) > 1
+    assert one.samples()[0].sample_id == "stiff-close-none-indoor-sun"
+    assert replace(one, foliage=grid.foliage, distances=grid.distances,
+                   branches=grid.branches) == grid  # fmt: skip
+
+
 def _burn(seconds: float) -> None:
     end = time.process_time() + seconds
     while time.process_time() < end:
@@ -137,7 +156,7 @@ def test_quick_steps_the_frames_and_renders_no_cycles(fake_rates, monkeypatch):
 
     monkeypatch.setattr(render, "bench_render", lambda *a, **k: pytest.fail("rendered"))
     outcomes = t.measure(QUICK, INDOOR, quick=True)
-    assert {c[0].frames_step for c in calls} == {t.QUICK_FRAMES_STEP}
+    assert {c[0].frames_step for c in calls} == {t.QUICK_FRAMES_STEP}  # the indoor one's too
     by_key = {o.target.key: o for o in outcomes}
     assert by_key["1a"].command.endswith(f"--frames-step {t.QUICK_FRAMES_STEP}")
     assert "--quick renders no Cycles" in by_key["2a"].why
@@ -236,7 +255,9 @@ def test_quick_run_prints_a_row_per_target(variant, pair_config, tmp_path, capsy
 
     # one sample of the pair, a few frames: rates and rows do not depend on the sample count
     one = dataclasses.replace(pair_config, branches=pair_config.branches[:1])
-    outcomes = t.bench_targets(one, INDOOR, tmp_path / "b", quick=True)
+    # 1c's grid: that sample again at one frame in 40 (an indoor one's dynamics take seconds)
+    indoor = dataclasses.replace(one, frames_step=40)
+    outcomes = t.bench_targets(one, indoor, tmp_path / "b", quick=True)
     printed = capsys.readouterr().out
     assert HEADER in printed and t.table(outcomes) in printed
     from bench.common.manifest import machine
@@ -250,6 +271,10 @@ def test_quick_run_prints_a_row_per_target(variant, pair_config, tmp_path, capsy
     assert all(o.figure > 0 for o in outcomes if o.figure is not None)
     row_1a = {o.target.key: o for o in outcomes}["1a"].baseline
     assert " s of CPU a frame: " in row_1a and "at the fewest rays (--spp 1 --subframes 1" in row_1a
+    row_1c = {o.target.key: o for o in outcomes}["1c"].baseline
+    frames = default_dataset_frames(indoor)  # the whole grid is its one sample here
+    assert f"{frames} indoor frames at the rate of its first sample, " in row_1c
+    assert f"soft-intermediate-none-outdoor-lab ({frames} frames, one in 40, 1 worker: " in row_1c
 
 
 @pytest.mark.skipif(shutil.which("make") is None, reason="needs make")
