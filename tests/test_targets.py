@@ -21,7 +21,9 @@ from bench.dataset.config import DatasetConfig
 from scenes.validation import FieldError
 
 QUICK = DatasetConfig(foliage=("soft",), distances=("intermediate",), branches=((),))
-INDOOR = DatasetConfig(foliage=("soft",), distances=("far",), branches=((),), protocols=("indoor",))
+INDOOR = DatasetConfig(
+    foliage=("soft",), distances=("far",), branches=((), (0.0,), (50.0,)), protocols=("indoor",)
+)
 HEADER = "| target | figure | threshold | met | baseline / ratio | command |"
 
 
@@ -82,16 +84,15 @@ def test_fake_figures_decide_met_and_unmeasured_rows_say_why(fake_rates, rates, 
         f"25.00 frames/s, {bound}"
     )
     assert by_key["1a"].figure == rates[2]  # the fewest rays' rate is a bound, not the figure
-    gain = rates[2] / rates[1]  # the indoor sample's rate (4 frames/s) times 1a's over 1b
-    hours = default_dataset_frames(INDOOR) / (4.0 * gain) / 3600
+    hours = default_dataset_frames(INDOOR) / 4.0 / 3600  # at the indoor samples' rate
     assert by_key["1c"].figure == pytest.approx(hours) and by_key["1c"].met is (hours < 1.5)
     assert by_key["1c"].baseline == (
         f"estimate: {default_dataset_frames(INDOOR):,} indoor frames at the rate of its first "
-        f"sample, soft-far-none-indoor-sun (30 frames, 1 worker: 4.00 frames/s; {bound}), "
-        f"times 1a's gain over 1b ({gain:.2f}x)"
+        f"samples on 2 workers, soft-far-none-indoor-sun, soft-far-0-indoor-sun (30 frames: "
+        f"4.00 frames/s; {bound})"
     )
     (indoor,) = [c for c in fake_rates[1] if c[0].protocols == ("indoor",)]
-    assert indoor[0] == t.first_sample(INDOOR) and indoor[1] == 1  # one sample, one worker
+    assert indoor[0] == t.leading_samples(INDOOR, 2) and indoor[1] == 2  # as make indoor
     for key in ("2a", "2b"):
         assert by_key[key].figure is None and "bpy not installed" in by_key[key].why
     assert by_key["3"].figure is None and "no device on this machine" in by_key["3"].why
@@ -121,15 +122,19 @@ def test_the_fewest_rays_change_only_the_sampling_as_the_options_named_do():
     assert dataset_config(_parser().parse_args(named)) == t.fewest_rays(quick) != quick
 
 
-def test_the_first_sample_is_the_grids_first_and_only_it():
+def test_the_leading_samples_are_the_grids_first():
     grid = DatasetConfig(
         foliage=("stiff", "soft"), distances=("close", "far"), protocols=("indoor",)
     )
-    one = t.first_sample(grid)
-    assert one.samples() == grid.samples()[:1] and len(grid.samples()) > 1
-    assert one.samples()[0].sample_id == "stiff-close-none-indoor-sun"
-    assert replace(one, foliage=grid.foliage, distances=grid.distances,
-                   branches=grid.branches) == grid  # fmt: skip
+    for n in (1, 2, 3):
+        lead = t.leading_samples(grid, n)
+        assert lead.samples() == grid.samples()[:n] and len(grid.samples()) > n
+        assert replace(lead, foliage=grid.foliage, distances=grid.distances,
+                       branches=grid.branches) == grid  # fmt: skip
+    assert [s.sample_id for s in t.leading_samples(grid, 2).samples()] == [
+        "stiff-close-none-indoor-sun",
+        "stiff-close-0-indoor-sun",
+    ]
 
 
 def _burn(seconds: float) -> None:
@@ -255,7 +260,7 @@ def test_quick_run_prints_a_row_per_target(variant, pair_config, tmp_path, capsy
 
     # one sample of the pair, a few frames: rates and rows do not depend on the sample count
     one = dataclasses.replace(pair_config, branches=pair_config.branches[:1])
-    # 1c's grid: that sample again at one frame in 40 (an indoor one's dynamics take seconds)
+    # 1c's grid: that sample at one frame in 40 (an indoor sample's dynamics take seconds)
     indoor = dataclasses.replace(one, frames_step=40)
     outcomes = t.bench_targets(one, indoor, tmp_path / "b", quick=True)
     printed = capsys.readouterr().out
@@ -273,8 +278,8 @@ def test_quick_run_prints_a_row_per_target(variant, pair_config, tmp_path, capsy
     assert " s of CPU a frame: " in row_1a and "at the fewest rays (--spp 1 --subframes 1" in row_1a
     row_1c = {o.target.key: o for o in outcomes}["1c"].baseline
     frames = default_dataset_frames(indoor)  # the whole grid is its one sample here
-    assert f"{frames} indoor frames at the rate of its first sample, " in row_1c
-    assert f"soft-intermediate-none-outdoor-lab ({frames} frames, one in 40, 1 worker: " in row_1c
+    assert f"{frames} indoor frames at the rate of its first samples on 2 workers, " in row_1c
+    assert f"soft-intermediate-none-outdoor-lab ({frames} frames, one in 40: " in row_1c
 
 
 @pytest.mark.skipif(shutil.which("make") is None, reason="needs make")

@@ -149,14 +149,16 @@ def fewest_rays(config: DatasetConfig) -> DatasetConfig:
     return replace(config, sampling=sampling)
 
 
-def first_sample(config: DatasetConfig) -> DatasetConfig:
-    """``config`` cut to the first sample of its grid (:meth:`DatasetConfig.samples` order)."""
+def leading_samples(config: DatasetConfig, workers: int) -> DatasetConfig:
+    """``config`` cut to the first ``workers`` samples of its grid, the ones ``make indoor``
+    starts together: its first foliage, distance, protocol and lighting, with as many of its
+    branch configurations (the grid's innermost axis, :meth:`DatasetConfig.samples`)."""
     s = config.samples()[0]
     return replace(
         config,
         foliage=(s.foliage,),
         distances=(s.distance,),
-        branches=(s.branches_mm,),
+        branches=config.branches[:workers],
         protocols=(s.protocol,),
         lightings=(s.lighting,),
     )
@@ -279,7 +281,7 @@ def measure(
             command=BY_KEY["1b"].command + suffix + variant_option,
         ),
     ]
-    out.append(indoor_estimate(indoor, rates["1a"] / rates["1b"], quick, cpu_variant, cores))
+    out.append(indoor_estimate(indoor, quick, cpu_variant, cores))
     print(f"  1c: {_figure(out[-1])}; {out[-1].baseline}", flush=True)
     for scene, key in (("array", "2a"), ("marker", "2b")):
         if quick:
@@ -292,27 +294,25 @@ def measure(
     return [replace(o, command=o.command or o.target.command) for o in out]
 
 
-def indoor_estimate(
-    indoor: DatasetConfig, gain: float, quick: bool, variant: str | None, cores: int
-) -> Outcome:
-    """1c: the indoor grid's frames at the rate of its first sample, made from scratch with one
-    worker (every :data:`QUICK_FRAMES_STEP`-th frame with ``quick``), times ``gain``, what two
-    workers gave over one on the quick grid. An indoor sample, not 1a's outdoor ones: those
-    reuse the optical image in 14 of their 74 frames (the still lead-in), an indoor sample in
-    14 of about 980."""
-    one = first_sample(indoor)
+def indoor_estimate(indoor: DatasetConfig, quick: bool, variant: str | None, cores: int) -> Outcome:
+    """1c: the indoor grid's frames at the rate of its first two samples, made from scratch
+    with two workers as ``make indoor`` makes the grid (every :data:`QUICK_FRAMES_STEP`-th
+    frame with ``quick``): indoor frames as the grid makes them, not 1a's outdoor ones, whose
+    samples reuse the optical image in 14 of their 74 frames (the still lead-in) where an indoor
+    sample does in 14 of about 980."""
+    lead = leading_samples(indoor, 2)
     if quick:
-        one = replace(one, frames_step=max(one.frames_step, QUICK_FRAMES_STEP))
-    sample = dataset_rate(one, 1, variant)
-    frames, rate = default_dataset_frames(indoor), sample["frames_per_s"]
-    every = f", one in {one.frames_step}" if one.frames_step > 1 else ""
+        lead = replace(lead, frames_step=max(lead.frames_step, QUICK_FRAMES_STEP))
+    made = dataset_rate(lead, 2, variant)
+    frames, rate = default_dataset_frames(indoor), made["frames_per_s"]
+    every = f", one in {lead.frames_step}" if lead.frames_step > 1 else ""
+    names = ", ".join(s.sample_id for s in lead.samples())
     return Outcome(
         BY_KEY["1c"],
-        frames / (rate * gain) / 3600,
-        f"estimate: {frames:,} indoor frames at the rate of its first sample, "
-        f"{one.samples()[0].sample_id} ({sample['frames_rendered']} frames{every}, 1 worker: "
-        f"{rate:.2f} frames/s; {cpu_bound(sample['cpu_s'], sample['frames_rendered'], cores)}), "
-        f"times 1a's gain over 1b ({gain:.2f}x)",
+        frames / rate / 3600,
+        f"estimate: {frames:,} indoor frames at the rate of its first samples on 2 workers, "
+        f"{names} ({made['frames_rendered']} frames{every}: {rate:.2f} frames/s; "
+        f"{cpu_bound(made['cpu_s'], made['frames_rendered'], cores)})",
     )
 
 
