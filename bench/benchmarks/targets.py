@@ -239,9 +239,10 @@ def measure(
 ) -> list[Outcome]:
     """Every target's outcome, in :data:`TARGETS` order, each line printed as it is measured.
 
-    ``quick``: ``quick_dataset`` at every :data:`QUICK_FRAMES_STEP`-th frame and no Cycles
-    renders (a test's run). Where a GPU is present the CPU rows run on llvm_ad_rgb, so they
-    stay CPU figures; elsewhere on the fastest variant, as ``dataset`` does.
+    ``quick``: ``quick_dataset`` and 1c's indoor samples at every :data:`QUICK_FRAMES_STEP`-th
+    frame and no Cycles renders (a test's run). Where a GPU is present the CPU rows run on
+    llvm_ad_rgb, so they stay CPU figures; elsewhere on the fastest variant, as ``dataset``
+    does.
     """
     cpu_variant = "llvm_ad_rgb" if gpu_present() else None
     config, suffix = quick_dataset, ""

@@ -39,7 +39,7 @@ def add_bench_targets_parser(bench_sub) -> None:
     p.add_argument(
         "--quick",
         action="store_true",
-        help="every 10th frame of the quick dataset and no Cycles renders: a first look",
+        help="every 10th frame of the datasets and no Cycles renders: a first look",
     )
     p.add_argument(
         "--time-tests",
